@@ -1,0 +1,478 @@
+//! The node loop: subscriptions feed a bounded drop-oldest queue, one thread runs the pipeline
+//! stages on it, and a status report is published every period on `~/status` and the JSON API.
+
+use std::collections::VecDeque;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Condvar, Mutex};
+use std::time::{Duration, Instant};
+
+use groupforward_msgs::gf_msgs::{
+    CameraStatus, GetInstanceRequest, GetInstanceResponse, Instance, ListInstancesRequest,
+    ListInstancesResponse, NodeStatus, RejectCount,
+};
+use groupforward_msgs::rmw_zenoh::{resolve_name, Qos};
+use groupforward_msgs::services::{GetInstance, ListInstances};
+use groupforward_msgs::{builtin_interfaces::Time, cdr, std_msgs::Header, RosMessage, RosService};
+
+use crate::config::Config;
+use crate::ingest::{Ingest, Reject, Rejection, Route, SyncedFrame};
+use crate::transport::{Endpoint, Transport, TransportError};
+
+#[derive(Debug, thiserror::Error)]
+pub enum NodeError {
+    #[error(transparent)]
+    Transport(#[from] TransportError),
+    #[error("naming: {0}")]
+    Naming(#[from] groupforward_msgs::rmw_zenoh::NamingError),
+}
+
+pub type Result<T> = std::result::Result<T, NodeError>;
+
+/// Bounded FIFO that drops the oldest entry when full and remembers what it dropped.
+#[derive(Debug)]
+pub struct InputQueue {
+    state: Mutex<QueueState>,
+    ready: Condvar,
+    capacity: usize,
+}
+
+#[derive(Debug, Default)]
+struct QueueState {
+    items: VecDeque<(Route, Vec<u8>)>,
+    dropped: Vec<Route>,
+}
+
+impl InputQueue {
+    pub fn new(capacity: usize) -> Self {
+        Self {
+            state: Mutex::new(QueueState::default()),
+            ready: Condvar::new(),
+            capacity: capacity.max(1),
+        }
+    }
+
+    pub fn push(&self, route: Route, payload: Vec<u8>) {
+        let Ok(mut state) = self.state.lock() else {
+            return;
+        };
+        if state.items.len() >= self.capacity {
+            if let Some((old, _)) = state.items.pop_front() {
+                state.dropped.push(old);
+            }
+        }
+        state.items.push_back((route, payload));
+        self.ready.notify_one();
+    }
+
+    /// The next item, waiting up to `timeout`; also returns the routes dropped since the last call.
+    pub fn pop(&self, timeout: Duration) -> (Option<(Route, Vec<u8>)>, Vec<Route>) {
+        let Ok(mut state) = self.state.lock() else {
+            return (None, Vec::new());
+        };
+        if state.items.is_empty() {
+            state = match self.ready.wait_timeout(state, timeout) {
+                Ok((s, _)) => s,
+                Err(_) => return (None, Vec::new()),
+            };
+        }
+        let item = state.items.pop_front();
+        (item, std::mem::take(&mut state.dropped))
+    }
+}
+
+/// Frames kept per camera for the stages that land later (keyframes, window passes).
+const RECENT_FRAMES_PER_CAMERA: usize = 4;
+
+/// The node's pipeline state, driven by [`Node::step`] without any transport.
+#[derive(Debug)]
+pub struct Node {
+    pub ingest: Ingest,
+    started: Instant,
+    recent: VecDeque<SyncedFrame>,
+    period_start: Instant,
+    period_received: Vec<u64>,
+}
+
+impl Node {
+    pub fn new(config: &Config) -> Self {
+        let ingest = Ingest::new(config);
+        let cameras = ingest.camera_count();
+        Self {
+            ingest,
+            started: Instant::now(),
+            recent: VecDeque::new(),
+            period_start: Instant::now(),
+            period_received: vec![0; cameras],
+        }
+    }
+
+    /// Process one message; returns how many frames completed.
+    pub fn step(&mut self, route: Route, payload: &[u8]) -> usize {
+        let _span = tracing::debug_span!("ingest", ?route).entered();
+        let frames = self.ingest.handle(route, payload);
+        let completed = frames.len();
+        for frame in frames {
+            self.recent.push_back(frame);
+        }
+        let cap = RECENT_FRAMES_PER_CAMERA * self.ingest.camera_count().max(1);
+        while self.recent.len() > cap {
+            self.recent.pop_front();
+        }
+        completed
+    }
+
+    /// The newest completed frames, oldest first.
+    pub fn recent_frames(&self) -> impl Iterator<Item = &SyncedFrame> {
+        self.recent.iter()
+    }
+
+    /// Count inputs the queue dropped before they were processed.
+    pub fn record_dropped(&mut self, routes: &[Route]) {
+        for route in routes {
+            self.ingest.record_dropped(
+                *route,
+                &Rejection {
+                    reason: Reject::QueueOverflow,
+                    detail: "input queue full: the oldest message was dropped".into(),
+                },
+            );
+        }
+    }
+
+    /// A status report; rates cover the time since the previous report.
+    pub fn status(&mut self, now: Instant) -> NodeStatus {
+        let period = now
+            .duration_since(self.period_start)
+            .as_secs_f64()
+            .max(1e-9);
+        let mut cameras = Vec::new();
+        for (i, name) in self.ingest.camera_names().enumerate() {
+            let Some(c) = self.ingest.camera_counters(i) else {
+                continue;
+            };
+            let in_period = c.received - self.period_received.get(i).copied().unwrap_or(0);
+            cameras.push(CameraStatus {
+                name: name.to_owned(),
+                frames_received: c.received,
+                frames_synced: c.synced,
+                frames_rejected: c.rejected,
+                rate_hz: (in_period as f64 / period) as f32,
+                last_stamp: Time::from_nanos(c.last_stamp_nanos),
+            });
+        }
+        self.period_received = cameras.iter().map(|c| c.frames_received).collect();
+        self.period_start = now;
+        NodeStatus {
+            header: Header {
+                stamp: Time::from_nanos(wall_nanos()),
+                frame_id: String::new(),
+            },
+            uptime_secs: now.duration_since(self.started).as_secs_f64(),
+            cameras,
+            tf_received: self.ingest.tf_received,
+            tf_rejected: self.ingest.tf_rejected,
+            rejections: self
+                .ingest
+                .rejections
+                .iter()
+                .map(|(reason, count)| RejectCount {
+                    reason: reason.code().to_owned(),
+                    count,
+                })
+                .collect(),
+        }
+    }
+}
+
+fn wall_nanos() -> i64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos() as i64)
+}
+
+/// State shared with service and JSON handlers, which run on transport threads.
+#[derive(Debug, Default)]
+pub struct Shared {
+    pub status: NodeStatus,
+    /// Live instances; grouping fills this in a later stage.
+    pub instances: Vec<Instance>,
+}
+
+fn handle_list(shared: &Mutex<Shared>, request: &[u8]) -> std::result::Result<Vec<u8>, String> {
+    let request: ListInstancesRequest = cdr::decode(request).map_err(|e| e.to_string())?;
+    let instances = shared
+        .lock()
+        .map_err(|e| e.to_string())?
+        .instances
+        .iter()
+        .filter(|i| {
+            request.label_filter.is_empty()
+                || i.hypotheses
+                    .first()
+                    .is_some_and(|h| h.class_id.contains(&request.label_filter))
+        })
+        .cloned()
+        .collect();
+    cdr::encode(&ListInstancesResponse { instances }).map_err(|e| e.to_string())
+}
+
+fn handle_get(shared: &Mutex<Shared>, request: &[u8]) -> std::result::Result<Vec<u8>, String> {
+    let request: GetInstanceRequest = cdr::decode(request).map_err(|e| e.to_string())?;
+    let found = shared
+        .lock()
+        .map_err(|e| e.to_string())?
+        .instances
+        .iter()
+        .find(|i| i.id == request.id)
+        .cloned();
+    let response = GetInstanceResponse {
+        found: found.is_some(),
+        instance: found.unwrap_or_default(),
+        ..Default::default()
+    };
+    cdr::encode(&response).map_err(|e| e.to_string())
+}
+
+fn handle_json(shared: &Mutex<Shared>, name: &str) -> std::result::Result<String, String> {
+    let shared = shared.lock().map_err(|e| e.to_string())?;
+    let value = match name {
+        "status" => serde_json::to_value(&shared.status),
+        "instances" => serde_json::to_value(&shared.instances),
+        other => {
+            return Err(format!(
+                "unknown API `{other}`; available: status, instances"
+            ))
+        }
+    };
+    value.map(|v| v.to_string()).map_err(|e| e.to_string())
+}
+
+/// The resolved names the node declares, for logs and docs.
+#[derive(Debug, Clone)]
+pub struct Declared {
+    pub subscriptions: Vec<Endpoint>,
+    pub publications: Vec<Endpoint>,
+    pub services: Vec<Endpoint>,
+    pub json_prefix: String,
+}
+
+/// Run the node on `transport` until `shutdown` is set; returns the last status.
+pub fn run(
+    config: &Config,
+    transport: &dyn Transport,
+    shutdown: &AtomicBool,
+) -> Result<NodeStatus> {
+    let queue = Arc::new(InputQueue::new(config.ingest.queue_depth));
+    let shared = Arc::new(Mutex::new(Shared::default()));
+    let declared = declare(config, transport, &queue, &shared)?;
+    let status_publisher = transport.advertise(&declared.publications[0])?;
+    tracing::info!(
+        subscriptions = declared.subscriptions.len(),
+        json = %declared.json_prefix,
+        "node `{}` running",
+        config.node.name
+    );
+    let mut node = Node::new(config);
+    let period = Duration::from_secs_f64(config.status.period_secs);
+    let mut next_status = Instant::now() + period;
+    let mut last = node.status(Instant::now());
+    while !shutdown.load(Ordering::Relaxed) {
+        let (item, dropped) = queue.pop(Duration::from_millis(20));
+        node.record_dropped(&dropped);
+        if let Some((route, payload)) = item {
+            node.step(route, &payload);
+        }
+        let now = Instant::now();
+        if now >= next_status {
+            next_status = now + period;
+            last = publish_status(&mut node, now, status_publisher.as_ref(), &shared);
+        }
+    }
+    // Drain what already arrived so a replay's last messages are counted.
+    loop {
+        let (item, dropped) = queue.pop(Duration::ZERO);
+        node.record_dropped(&dropped);
+        match item {
+            Some((route, payload)) => {
+                node.step(route, &payload);
+            }
+            None => break,
+        }
+    }
+    if !last.cameras.is_empty() || node.ingest.tf_received > 0 {
+        last = publish_status(
+            &mut node,
+            Instant::now(),
+            status_publisher.as_ref(),
+            &shared,
+        );
+    }
+    Ok(last)
+}
+
+fn publish_status(
+    node: &mut Node,
+    now: Instant,
+    publisher: &dyn crate::transport::Publisher,
+    shared: &Mutex<Shared>,
+) -> NodeStatus {
+    let status = node.status(now);
+    match cdr::encode(&status) {
+        Ok(bytes) => {
+            if let Err(e) = publisher.publish(&bytes) {
+                tracing::warn!("cannot publish status: {e}");
+            }
+        }
+        Err(e) => tracing::warn!("cannot encode status: {e}"),
+    }
+    if let Ok(mut s) = shared.lock() {
+        s.status = status.clone();
+    }
+    status
+}
+
+/// Subscribe to the inputs, and declare the status topic, services and JSON API.
+pub fn declare(
+    config: &Config,
+    transport: &dyn Transport,
+    queue: &Arc<InputQueue>,
+    shared: &Arc<Mutex<Shared>>,
+) -> Result<Declared> {
+    let ns = &config.node.namespace;
+    let name = &config.node.name;
+    let mut subscriptions = Vec::new();
+    for (topic, route) in Ingest::routes(config) {
+        let qos = match route {
+            Route::TfStatic => Qos {
+                transient_local: true,
+                depth: 1,
+                ..Qos::default()
+            },
+            Route::Tf => Qos::default(),
+            _ => Qos::sensor_data(),
+        };
+        let endpoint = Endpoint::new(&resolve_name(ns, name, &topic)?, route.type_name(), qos)?;
+        let queue = queue.clone();
+        transport.subscribe(
+            &endpoint,
+            Arc::new(move |payload| queue.push(route, payload)),
+        )?;
+        subscriptions.push(endpoint);
+    }
+    let status = Endpoint::new(
+        &resolve_name(ns, name, "~/status")?,
+        NodeStatus::TYPE_NAME,
+        Qos::default(),
+    )?;
+    let list = Endpoint::new(
+        &resolve_name(ns, name, "~/list_instances")?,
+        ListInstances::TYPE_NAME,
+        Qos::default(),
+    )?;
+    let get = Endpoint::new(
+        &resolve_name(ns, name, "~/get_instance")?,
+        GetInstance::TYPE_NAME,
+        Qos::default(),
+    )?;
+    let s = shared.clone();
+    transport.serve(&list, Arc::new(move |req| handle_list(&s, req)))?;
+    let s = shared.clone();
+    transport.serve(&get, Arc::new(move |req| handle_get(&s, req)))?;
+    let prefix = config.api_prefix();
+    let s = shared.clone();
+    transport.serve_json(&prefix, Arc::new(move |api, _body| handle_json(&s, api)))?;
+    Ok(Declared {
+        subscriptions,
+        publications: vec![status],
+        services: vec![list, get],
+        json_prefix: prefix,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::transport::{MemoryHandle, MemoryTransport};
+    use groupforward_msgs::sensor_msgs::Image;
+
+    #[test]
+    fn queue_drops_oldest_and_reports_it() {
+        let queue = InputQueue::new(2);
+        queue.push(Route::Tf, vec![1]);
+        queue.push(Route::Image(0), vec![2]);
+        queue.push(Route::Tf, vec![3]);
+        let (item, dropped) = queue.pop(Duration::ZERO);
+        assert_eq!(item.unwrap().1, vec![2]);
+        assert_eq!(dropped, vec![Route::Tf]);
+        let (item, dropped) = queue.pop(Duration::ZERO);
+        assert_eq!(item.unwrap().1, vec![3]);
+        assert!(dropped.is_empty());
+        assert!(queue.pop(Duration::from_millis(1)).0.is_none());
+    }
+
+    #[test]
+    fn run_counts_frames_serves_and_publishes_status_over_memory_transport() {
+        let mut config = Config::default();
+        config.cameras[0].depth_topic = None;
+        config.status.period_secs = 0.05;
+        let bus = MemoryTransport::new();
+        let handle = MemoryHandle(bus.clone());
+        let shutdown = Arc::new(AtomicBool::new(false));
+        let runner = {
+            let (config, shutdown) = (config.clone(), shutdown.clone());
+            std::thread::spawn(move || run(&config, &handle, &shutdown))
+        };
+        // Wait until the node has subscribed.
+        let deadline = Instant::now() + Duration::from_secs(5);
+        while bus.get_json("groupforward/default/status", b"").is_err() {
+            assert!(Instant::now() < deadline, "node did not start");
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        let image = Image {
+            width: 2,
+            height: 2,
+            encoding: "rgb8".into(),
+            step: 6,
+            data: vec![0; 12],
+            ..Default::default()
+        };
+        for _ in 0..3 {
+            bus.inject("/camera/color/image_raw", &cdr::encode(&image).unwrap());
+        }
+        bus.inject("/camera/color/image_raw", b"garbage");
+        let deadline = Instant::now() + Duration::from_secs(5);
+        loop {
+            let json: serde_json::Value =
+                serde_json::from_str(&bus.get_json("groupforward/default/status", b"").unwrap())
+                    .unwrap();
+            if json["cameras"][0]["frames_received"] == 3
+                && json["cameras"][0]["frames_rejected"] == 1
+            {
+                assert_eq!(json["rejections"][0]["reason"], "malformed_cdr");
+                break;
+            }
+            assert!(
+                Instant::now() < deadline,
+                "status never showed the frames: {json}"
+            );
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        let list = bus
+            .call(
+                "/groupforward/list_instances",
+                &cdr::encode(&ListInstancesRequest::default()).unwrap(),
+            )
+            .unwrap();
+        let list: ListInstancesResponse = cdr::decode(&list).unwrap();
+        assert!(list.instances.is_empty());
+        assert!(bus.call("/groupforward/list_instances", b"bad").is_err());
+        assert!(bus.get_json("groupforward/default/nothing", b"").is_err());
+        shutdown.store(true, Ordering::Relaxed);
+        let last = runner.join().unwrap().unwrap();
+        assert_eq!(last.cameras[0].frames_received, 3);
+        let published = bus.published("/groupforward/status");
+        assert!(!published.is_empty());
+        let status: NodeStatus = cdr::decode(published.last().unwrap()).unwrap();
+        assert_eq!(status.cameras[0].name, "front");
+    }
+}
