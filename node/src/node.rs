@@ -276,6 +276,9 @@ pub fn run(
     let period = Duration::from_secs_f64(config.status.period_secs);
     let mut next_status = Instant::now() + period;
     let mut last = node.status(Instant::now());
+    if let Ok(mut s) = shared.lock() {
+        s.status = last.clone();
+    }
     while !shutdown.load(Ordering::Relaxed) {
         let (item, dropped) = queue.pop(Duration::from_millis(20));
         node.record_dropped(&dropped);

@@ -8,28 +8,18 @@ compares it with the JSON, re-encodes it and compares the bytes.
 
 import dataclasses
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
-from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-ROOT = Path(__file__).resolve().parents[2] / 'ros'
+sys.path.insert(0, str(Path(__file__).resolve().parents[3] / 'tests' / 'python'))
+from rostypes import typestore  # noqa: E402
+
 OUT = Path(__file__).resolve().parent / 'golden.json'
 
-ts = get_typestore(Stores.ROS2_JAZZY)
-add = {}
-for pkg in ['vision_msgs']:
-    for path in sorted((ROOT / 'upstream' / pkg / 'msg').glob('*.msg')):
-        add.update(get_types_from_msg(path.read_text(), f'{pkg}/msg/{path.stem}'))
-for path in sorted((ROOT / 'groupforward_msgs' / 'msg').glob('*.msg')):
-    add.update(get_types_from_msg(path.read_text(), f'groupforward_msgs/msg/{path.stem}'))
-for path in sorted((ROOT / 'groupforward_msgs' / 'srv').glob('*.srv')):
-    request, response = path.read_text().split('\n---\n')
-    # rosbags files messages under pkg/msg/; resolve names there, then register under pkg/srv/.
-    for part, text in (('Request', request), ('Response', response)):
-        (definition,) = get_types_from_msg(text, f'groupforward_msgs/msg/{path.stem}_{part}').values()
-        add[f'groupforward_msgs/srv/{path.stem}_{part}'] = definition
-ts.register(add)
+ts = typestore()
+add = {name: None for name in ts.types if name.startswith(('vision_msgs/', 'groupforward_msgs/'))}
 
 T = lambda name: ts.types[name]  # noqa: E731
 Time = T('builtin_interfaces/msg/Time')
