@@ -1,6 +1,8 @@
 //! The message layer against independent references: CDR bytes and RIHS01 hashes written by Python
 //! `rosbags` (tests/golden, with the script that made them), and the `.msg` files field by field.
 
+#![allow(clippy::unwrap_used)] // test helpers outside #[test] functions unwrap too
+
 use std::collections::BTreeMap;
 
 use groupforward_msgs::idl::{self, BaseType, Container};

@@ -124,6 +124,17 @@ pub fn replay(
             })
         })
         .collect::<Result<Vec<_>>>()?;
+    let names: Vec<String> = files.iter().map(|f| f.display().to_string()).collect();
+    replay_buffers(&names, &buffers, transport, options)
+}
+
+/// Publish every message of in-memory MCAP files (`names` label them in errors), in order.
+pub fn replay_buffers(
+    names: &[String],
+    buffers: &[Vec<u8>],
+    transport: &dyn Transport,
+    options: ReplayOptions,
+) -> Result<ReplaySummary> {
     let total: u64 = buffers
         .iter()
         .filter_map(|b| mcap::Summary::read(b).ok().flatten())
@@ -148,14 +159,14 @@ pub fn replay(
         pass += 1;
         let pass_start = Instant::now();
         let mut first_log_time: Option<u64> = None;
-        for (file, buffer) in files.iter().zip(&buffers) {
+        for (name, buffer) in names.iter().zip(buffers) {
             let stream = mcap::MessageStream::new(buffer).map_err(|source| ReplayError::Mcap {
-                path: file.display().to_string(),
+                path: name.clone(),
                 source,
             })?;
             for message in stream {
                 let message = message.map_err(|source| ReplayError::Mcap {
-                    path: file.display().to_string(),
+                    path: name.clone(),
                     source,
                 })?;
                 let first = *first_log_time.get_or_insert(message.log_time);

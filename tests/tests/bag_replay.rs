@@ -1,0 +1,204 @@
+//! A bag written in memory is replayed over zenoh into a running node, which syncs every frame.
+
+#![allow(clippy::unwrap_used)] // test helpers outside #[test] functions unwrap too
+
+use std::collections::BTreeMap;
+use std::io::Cursor;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::Duration;
+
+use groupforward::config::{Config, ZenohSection};
+use groupforward::demo::{query_json, wait_for};
+use groupforward::replay::{replay_buffers, ReplayOptions};
+use groupforward::transport::{open_session, ZenohTransport};
+use groupforward_msgs::gf_msgs::NodeStatus;
+use groupforward_msgs::idl::EMBEDDED;
+use groupforward_msgs::sensor_msgs::{CameraInfo, Image};
+use groupforward_msgs::tf2_msgs::TFMessage;
+use groupforward_msgs::{cdr, RosMessage};
+use groupforward_sim::testcard::TestCard;
+
+/// A rosbag2-style MCAP: ros2msg schemas, cdr channels with the publisher's type hash.
+struct BagWriter {
+    writer: mcap::Writer<Cursor<Vec<u8>>>,
+    channels: BTreeMap<String, u16>,
+    sequence: u32,
+}
+
+impl BagWriter {
+    fn new() -> Self {
+        Self {
+            writer: mcap::Writer::new(Cursor::new(Vec::new())).unwrap(),
+            channels: BTreeMap::new(),
+            sequence: 0,
+        }
+    }
+
+    fn write<T: RosMessage>(&mut self, topic: &str, log_time: i64, message: &T) {
+        if !self.channels.contains_key(topic) {
+            let (_, pkg, name, text) = EMBEDDED
+                .iter()
+                .find(|(_, p, n, _)| format!("{p}/msg/{n}") == T::TYPE_NAME)
+                .unwrap();
+            let schema = self
+                .writer
+                .add_schema(&format!("{pkg}/msg/{name}"), "ros2msg", text.as_bytes())
+                .unwrap();
+            let metadata =
+                BTreeMap::from([("topic_type_hash".to_owned(), T::type_hash().unwrap())]);
+            let id = self
+                .writer
+                .add_channel(schema, topic, "cdr", &metadata)
+                .unwrap();
+            self.channels.insert(topic.to_owned(), id);
+        }
+        self.sequence += 1;
+        let header = mcap::records::MessageHeader {
+            channel_id: self.channels[topic],
+            sequence: self.sequence,
+            log_time: log_time as u64,
+            publish_time: log_time as u64,
+        };
+        self.writer
+            .write_to_known_channel(&header, &cdr::encode(message).unwrap())
+            .unwrap();
+    }
+
+    fn finish(mut self) -> Vec<u8> {
+        self.writer.finish().unwrap();
+        self.writer.into_inner().into_inner()
+    }
+}
+
+fn testcard_bag(card: &TestCard, frames: u64) -> Vec<u8> {
+    let mut bag = BagWriter::new();
+    let t0 = card.stamp(0).as_nanos();
+    bag.write::<TFMessage>("/tf_static", t0, &card.tf_static());
+    for i in 0..frames {
+        let f = card.frame(i);
+        let t = f.stamp.as_nanos();
+        bag.write::<TFMessage>("/tf", t, &f.tf);
+        bag.write::<CameraInfo>("/camera/color/camera_info", t + 1, &f.camera_info);
+        bag.write::<Image>("/camera/depth/image_raw", t + 2, &f.depth);
+        bag.write::<Image>("/camera/color/image_raw", t + 3, &f.image);
+    }
+    bag.finish()
+}
+
+fn embedded_session() -> zenoh::Session {
+    open_session(&ZenohSection {
+        connect: Vec::new(),
+        ..ZenohSection::default()
+    })
+    .unwrap()
+}
+
+/// Replay `bag` into a fresh node on its own session; once the node reports `frames` colour frames
+/// (received or rejected), stop it and return its final status.
+fn replay_into_node(bag: &[u8], frames: u64) -> NodeStatus {
+    let session = embedded_session();
+    let mut config = Config::default();
+    config.status.period_secs = 0.1;
+    let node_transport = ZenohTransport::new(session.clone(), 0, "/", "groupforward").unwrap();
+    let shutdown = Arc::new(AtomicBool::new(false));
+    let node = {
+        let (config, shutdown) = (config.clone(), shutdown.clone());
+        std::thread::spawn(move || groupforward::node::run(&config, &node_transport, &shutdown))
+    };
+    let key = format!("{}/status", config.api_prefix());
+    wait_for("start", Duration::from_secs(10), || {
+        query_json(&session, &key, Duration::from_millis(300)).ok()
+    })
+    .unwrap();
+    let player = ZenohTransport::new(session.clone(), 0, "/", "player").unwrap();
+    let options = ReplayOptions {
+        rate: 8.0,
+        loops: 1,
+        progress: false,
+    };
+    let summary = replay_buffers(&["memory".into()], &[bag.to_vec()], &player, options).unwrap();
+    assert!(summary.skipped.is_empty(), "{:?}", summary.skipped);
+    wait_for("count every frame", Duration::from_secs(10), || {
+        let json = query_json(&session, &key, Duration::from_millis(300)).ok()?;
+        let status: NodeStatus = serde_json::from_value(json).ok()?;
+        let camera = status.cameras.first()?;
+        (camera.frames_received + camera.frames_rejected >= frames).then_some(())
+    })
+    .unwrap();
+    shutdown.store(true, Ordering::Relaxed);
+    node.join().unwrap().unwrap()
+}
+
+#[test]
+fn replayed_bag_syncs_every_frame_and_twice_gives_the_same_counts() {
+    let card = TestCard {
+        width: 64,
+        height: 48,
+        ..TestCard::default()
+    };
+    let frames = 12;
+    let bag = testcard_bag(&card, frames);
+    let first = replay_into_node(&bag, frames);
+    let camera = &first.cameras[0];
+    assert_eq!(camera.frames_received, frames);
+    assert_eq!(camera.frames_synced, frames);
+    assert_eq!(camera.frames_rejected, 0, "{:?}", first.rejections);
+    assert_eq!(first.tf_received, frames + 1);
+    let second = replay_into_node(&bag, frames);
+    let counts = |s: &NodeStatus| {
+        let c = &s.cameras[0];
+        (
+            c.frames_received,
+            c.frames_synced,
+            c.frames_rejected,
+            c.last_stamp,
+            s.tf_received,
+        )
+    };
+    assert_eq!(counts(&second), counts(&first));
+}
+
+#[test]
+fn unknown_types_are_skipped_and_reported_and_corrupt_bags_fail_clearly() {
+    let mut writer = mcap::Writer::new(Cursor::new(Vec::new())).unwrap();
+    let schema = writer
+        .add_schema("my_pkg/msg/Thing", "ros2msg", b"int32 x")
+        .unwrap();
+    let channel = writer
+        .add_channel(schema, "/thing", "cdr", &BTreeMap::new())
+        .unwrap();
+    let header = mcap::records::MessageHeader {
+        channel_id: channel,
+        sequence: 1,
+        log_time: 1,
+        publish_time: 1,
+    };
+    writer
+        .write_to_known_channel(&header, &[0, 1, 0, 0, 1, 0, 0, 0])
+        .unwrap();
+    writer.finish().unwrap();
+    let bag = writer.into_inner().into_inner();
+    let session = embedded_session();
+    let player = ZenohTransport::new(session, 0, "/", "player").unwrap();
+    let options = ReplayOptions {
+        rate: 0.0,
+        loops: 1,
+        progress: false,
+    };
+    let summary = replay_buffers(&["m".into()], &[bag], &player, options).unwrap();
+    assert_eq!(summary.published, 0);
+    let (count, reason) = &summary.skipped["/thing"];
+    assert_eq!(*count, 1);
+    assert!(reason.contains("my_pkg/msg/Thing"), "{reason}");
+    let corrupt = replay_buffers(
+        &["bad".into()],
+        &[b"not an mcap".to_vec()],
+        &player,
+        options,
+    );
+    assert!(corrupt
+        .unwrap_err()
+        .to_string()
+        .contains("not a valid MCAP"));
+}
