@@ -6,7 +6,7 @@ PYTHON ?= python3
 VENV := .venv
 STAMP := $(VENV)/.installed-$(shell sha256sum tests/python/requirements.txt | cut -c1-16)
 
-.PHONY: all setup demo test test-rust test-python lint bench golden clean
+.PHONY: all setup build demo test test-rust test-python lint bench golden clean
 
 all: test
 
@@ -24,11 +24,16 @@ lint:
 	$(CARGO) fmt --all -- --check
 	$(CARGO) clippy --workspace --all-targets --quiet -- -D warnings
 
-test-rust:
-	$(CARGO) test --workspace
+# One feature set for every build (all targets, dev-dependencies unified), so the binary the Python
+# tests run and the test builds share their compiled dependencies instead of building them twice.
+build:
+	$(CARGO) build --workspace --all-targets
 
-test-python: setup
-	$(CARGO) build --quiet -p groupforward
+# --all-targets also runs each benchmark once, as a smoke test.
+test-rust: build
+	$(CARGO) test --workspace --all-targets
+
+test-python: setup build
 	PYTHONDONTWRITEBYTECODE=1 $(VENV)/bin/python -m pytest -q -p no:cacheprovider tests/python
 
 test: lint test-rust test-python

@@ -158,6 +158,7 @@ impl ZenohTransport {
             name: name.to_owned(),
             enclave: "/".into(),
         };
+        tracing::info!(token = %node.node_token(), "liveliness token");
         let token = session
             .liveliness()
             .declare_token(node.node_token())
@@ -186,7 +187,7 @@ impl ZenohTransport {
             &endpoint.type_hash,
             &endpoint.qos,
         )?;
-        tracing::debug!(token = %token_key, "liveliness token");
+        tracing::info!(token = %token_key, "liveliness token");
         let token = self
             .session
             .liveliness()
@@ -240,6 +241,7 @@ impl Transport for ZenohTransport {
         // payload is validated when decoded.
         let key = rmw_zenoh::data_key(self.node.domain_id, &topic.name, &topic.type_name, "*")?;
         self.announce(EntityKind::Subscription, topic)?;
+        tracing::info!(%key, "subscribing");
         let subscriber = self
             .session
             .declare_subscriber(key)
@@ -253,6 +255,7 @@ impl Transport for ZenohTransport {
     fn advertise(&self, topic: &Endpoint) -> Result<Box<dyn Publisher>> {
         let key = self.data_key(topic)?;
         let gid = self.announce(EntityKind::Publisher, topic)?;
+        tracing::info!(%key, "publishing");
         let publisher = self.session.declare_publisher(key).wait().map_err(zerr)?;
         Ok(Box::new(ZenohPublisher {
             publisher,
@@ -264,6 +267,7 @@ impl Transport for ZenohTransport {
     fn serve(&self, service: &Endpoint, handler: ServiceHandler) -> Result<()> {
         let key = self.data_key(service)?;
         self.announce(EntityKind::ServiceServer, service)?;
+        tracing::info!(%key, "serving");
         let name = service.name.clone();
         let queryable = self
             .session
@@ -306,6 +310,7 @@ impl Transport for ZenohTransport {
     fn serve_json(&self, prefix: &str, handler: JsonHandler) -> Result<()> {
         let prefix = prefix.trim_end_matches('/').to_owned();
         let key = format!("{prefix}/*");
+        tracing::info!(%key, "serving JSON API");
         let queryable = self
             .session
             .declare_queryable(key)

@@ -1,0 +1,159 @@
+//! Replay → node throughput: 640×480 rgb8 frames (with CameraInfo and TF) from an in-memory MCAP bag,
+//! published over zenoh as fast as possible, through the node's subscriptions, queue, decode,
+//! validation and stamp sync. Reported as frames per second; compare with a 30 Hz camera.
+//!
+//! `cargo bench -p groupforward --bench replay_throughput`
+
+#![allow(clippy::unwrap_used)] // benchmark setup
+
+use std::collections::BTreeMap;
+use std::io::Cursor;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use criterion::{criterion_group, criterion_main, Criterion, Throughput};
+use groupforward::config::{Config, ZenohSection};
+use groupforward::ingest::Route;
+use groupforward::node::{declare, InputQueue, Node, Shared};
+use groupforward::replay::{replay_buffers, ReplayOptions};
+use groupforward::transport::{open_session, ZenohTransport};
+use groupforward_msgs::idl::EMBEDDED;
+use groupforward_msgs::sensor_msgs::{CameraInfo, Image};
+use groupforward_msgs::tf2_msgs::TFMessage;
+use groupforward_msgs::{cdr, RosMessage};
+use groupforward_sim::testcard::TestCard;
+
+const FRAMES: u64 = 40;
+
+fn add<T: RosMessage>(
+    writer: &mut mcap::Writer<Cursor<Vec<u8>>>,
+    channels: &mut BTreeMap<String, u16>,
+    topic: &str,
+    t: i64,
+    m: &T,
+) {
+    if !channels.contains_key(topic) {
+        let (_, _, _, text) = EMBEDDED
+            .iter()
+            .find(|(_, p, n, _)| format!("{p}/msg/{n}") == T::TYPE_NAME)
+            .unwrap();
+        let schema = writer
+            .add_schema(T::TYPE_NAME, "ros2msg", text.as_bytes())
+            .unwrap();
+        let metadata = BTreeMap::from([("topic_type_hash".to_owned(), T::type_hash().unwrap())]);
+        channels.insert(
+            topic.to_owned(),
+            writer.add_channel(schema, topic, "cdr", &metadata).unwrap(),
+        );
+    }
+    let header = mcap::records::MessageHeader {
+        channel_id: channels[topic],
+        sequence: 0,
+        log_time: t as u64,
+        publish_time: t as u64,
+    };
+    writer
+        .write_to_known_channel(&header, &cdr::encode(m).unwrap())
+        .unwrap();
+}
+
+fn bag(card: &TestCard) -> Vec<u8> {
+    let mut writer = mcap::Writer::new(Cursor::new(Vec::new())).unwrap();
+    let mut channels = BTreeMap::new();
+    add::<TFMessage>(
+        &mut writer,
+        &mut channels,
+        "/tf_static",
+        card.stamp(0).as_nanos(),
+        &card.tf_static(),
+    );
+    for i in 0..FRAMES {
+        let f = card.frame(i);
+        let t = f.stamp.as_nanos();
+        add::<TFMessage>(&mut writer, &mut channels, "/tf", t, &f.tf);
+        add::<CameraInfo>(
+            &mut writer,
+            &mut channels,
+            "/camera/color/camera_info",
+            t,
+            &f.camera_info,
+        );
+        add::<Image>(
+            &mut writer,
+            &mut channels,
+            "/camera/color/image_raw",
+            t,
+            &f.image,
+        );
+    }
+    writer.finish().unwrap();
+    writer.into_inner().into_inner()
+}
+
+fn replay_to_node(c: &mut Criterion) {
+    let card = TestCard {
+        width: 640,
+        height: 480,
+        ..TestCard::default()
+    };
+    let bag = bag(&card);
+    let session = open_session(&ZenohSection {
+        connect: Vec::new(),
+        ..ZenohSection::default()
+    })
+    .unwrap();
+    let mut config = Config::default();
+    config.cameras[0].depth_topic = None;
+    // Deep enough that a full-speed replay drops nothing: this measures processing, not the bound.
+    config.ingest.queue_depth = 4 * (3 * FRAMES as usize + 1);
+    config.ingest.pending_frames = FRAMES as usize;
+    let node_transport = ZenohTransport::new(session.clone(), 0, "/", "groupforward").unwrap();
+    let queue = Arc::new(InputQueue::new(config.ingest.queue_depth));
+    declare(
+        &config,
+        &node_transport,
+        &queue,
+        &Arc::new(Mutex::new(Shared::default())),
+    )
+    .unwrap();
+    let player = ZenohTransport::new(session.clone(), 0, "/", "player").unwrap();
+    let options = ReplayOptions {
+        rate: 0.0,
+        loops: 1,
+        progress: false,
+    };
+
+    let mut group = c.benchmark_group("replay_to_node_640x480_rgb8");
+    group.throughput(Throughput::Elements(FRAMES));
+    group.sample_size(10);
+    group.measurement_time(Duration::from_secs(20));
+    group.bench_function("frames", |b| {
+        b.iter_custom(|iterations| {
+            let mut total = Duration::ZERO;
+            for _ in 0..iterations {
+                let mut node = Node::new(&config);
+                let start = Instant::now();
+                replay_buffers(
+                    &["bench".into()],
+                    std::slice::from_ref(&bag),
+                    &player,
+                    options,
+                )
+                .unwrap();
+                let mut synced = 0;
+                while synced < FRAMES as usize {
+                    let (item, dropped) = queue.pop(Duration::from_secs(5));
+                    assert!(dropped.is_empty(), "queue dropped input");
+                    let (route, payload): (Route, Vec<u8>) = item.expect("replayed frames arrive");
+                    synced += node.step(route, &payload);
+                }
+                total += start.elapsed();
+            }
+            total
+        })
+    });
+    group.finish();
+}
+
+criterion_group!(benches, replay_to_node);
+criterion_main!(benches);
