@@ -17,8 +17,8 @@ $(STAMP): tests/python/requirements.txt
 
 setup: $(STAMP)
 
-demo:
-	$(CARGO) run --quiet -p groupforward -- demo
+demo: build
+	./target/debug/groupforward demo
 
 lint:
 	$(CARGO) fmt --all -- --check

@@ -21,8 +21,6 @@ pub enum IdlError {
     },
     #[error("unknown interface type `{0}`")]
     UnknownType(String),
-    #[error("`{0}` is not a valid interface name (expected pkg/msg/Name or pkg/srv/Name)")]
-    BadName(String),
 }
 
 pub type Result<T> = std::result::Result<T, IdlError>;

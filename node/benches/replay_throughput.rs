@@ -6,8 +6,6 @@
 
 #![allow(clippy::unwrap_used)] // benchmark setup
 
-use std::collections::BTreeMap;
-use std::io::Cursor;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
@@ -17,78 +15,9 @@ use groupforward::ingest::Route;
 use groupforward::node::{declare, InputQueue, Node, Shared};
 use groupforward::replay::{replay_buffers, ReplayOptions};
 use groupforward::transport::{open_session, ZenohTransport};
-use groupforward_msgs::idl::EMBEDDED;
-use groupforward_msgs::sensor_msgs::{CameraInfo, Image};
-use groupforward_msgs::tf2_msgs::TFMessage;
-use groupforward_msgs::{cdr, RosMessage};
 use groupforward_sim::testcard::TestCard;
 
 const FRAMES: u64 = 40;
-
-fn add<T: RosMessage>(
-    writer: &mut mcap::Writer<Cursor<Vec<u8>>>,
-    channels: &mut BTreeMap<String, u16>,
-    topic: &str,
-    t: i64,
-    m: &T,
-) {
-    if !channels.contains_key(topic) {
-        let (_, _, _, text) = EMBEDDED
-            .iter()
-            .find(|(_, p, n, _)| format!("{p}/msg/{n}") == T::TYPE_NAME)
-            .unwrap();
-        let schema = writer
-            .add_schema(T::TYPE_NAME, "ros2msg", text.as_bytes())
-            .unwrap();
-        let metadata = BTreeMap::from([("topic_type_hash".to_owned(), T::type_hash().unwrap())]);
-        channels.insert(
-            topic.to_owned(),
-            writer.add_channel(schema, topic, "cdr", &metadata).unwrap(),
-        );
-    }
-    let header = mcap::records::MessageHeader {
-        channel_id: channels[topic],
-        sequence: 0,
-        log_time: t as u64,
-        publish_time: t as u64,
-    };
-    writer
-        .write_to_known_channel(&header, &cdr::encode(m).unwrap())
-        .unwrap();
-}
-
-fn bag(card: &TestCard) -> Vec<u8> {
-    let mut writer = mcap::Writer::new(Cursor::new(Vec::new())).unwrap();
-    let mut channels = BTreeMap::new();
-    add::<TFMessage>(
-        &mut writer,
-        &mut channels,
-        "/tf_static",
-        card.stamp(0).as_nanos(),
-        &card.tf_static(),
-    );
-    for i in 0..FRAMES {
-        let f = card.frame(i);
-        let t = f.stamp.as_nanos();
-        add::<TFMessage>(&mut writer, &mut channels, "/tf", t, &f.tf);
-        add::<CameraInfo>(
-            &mut writer,
-            &mut channels,
-            "/camera/color/camera_info",
-            t,
-            &f.camera_info,
-        );
-        add::<Image>(
-            &mut writer,
-            &mut channels,
-            "/camera/color/image_raw",
-            t,
-            &f.image,
-        );
-    }
-    writer.finish().unwrap();
-    writer.into_inner().into_inner()
-}
 
 fn replay_to_node(c: &mut Criterion) {
     let card = TestCard {
@@ -96,7 +25,7 @@ fn replay_to_node(c: &mut Criterion) {
         height: 480,
         ..TestCard::default()
     };
-    let bag = bag(&card);
+    let bag = card.bag(FRAMES, false).unwrap();
     let session = open_session(&ZenohSection {
         connect: Vec::new(),
         ..ZenohSection::default()

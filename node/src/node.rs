@@ -251,7 +251,7 @@ fn handle_json(shared: &Mutex<Shared>, name: &str) -> std::result::Result<String
 #[derive(Debug, Clone)]
 pub struct Declared {
     pub subscriptions: Vec<Endpoint>,
-    pub publications: Vec<Endpoint>,
+    pub status: Endpoint,
     pub services: Vec<Endpoint>,
     pub json_prefix: String,
 }
@@ -265,7 +265,7 @@ pub fn run(
     let queue = Arc::new(InputQueue::new(config.ingest.queue_depth));
     let shared = Arc::new(Mutex::new(Shared::default()));
     let declared = declare(config, transport, &queue, &shared)?;
-    let status_publisher = transport.advertise(&declared.publications[0])?;
+    let status_publisher = transport.advertise(&declared.status)?;
     tracing::info!(
         subscriptions = declared.subscriptions.len(),
         json = %declared.json_prefix,
@@ -386,7 +386,7 @@ pub fn declare(
     transport.serve_json(&prefix, Arc::new(move |api, _body| handle_json(&s, api)))?;
     Ok(Declared {
         subscriptions,
-        publications: vec![status],
+        status,
         services: vec![list, get],
         json_prefix: prefix,
     })
@@ -395,7 +395,7 @@ pub fn declare(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::transport::{MemoryHandle, MemoryTransport};
+    use crate::transport::MemoryTransport;
     use groupforward_msgs::sensor_msgs::Image;
 
     #[test]
@@ -419,7 +419,7 @@ mod tests {
         config.cameras[0].depth_topic = None;
         config.status.period_secs = 0.05;
         let bus = MemoryTransport::new();
-        let handle = MemoryHandle(bus.clone());
+        let handle = bus.clone();
         let shutdown = Arc::new(AtomicBool::new(false));
         let runner = {
             let (config, shutdown) = (config.clone(), shutdown.clone());

@@ -428,13 +428,9 @@ impl Publisher for MemoryPublisher {
     }
 }
 
-/// `Transport` for a shared in-memory bus.
-#[derive(Debug, Clone)]
-pub struct MemoryHandle(pub Arc<MemoryTransport>);
-
-impl Transport for MemoryHandle {
+impl Transport for Arc<MemoryTransport> {
     fn subscribe(&self, topic: &Endpoint, sink: Sink) -> Result<()> {
-        if let Ok(mut sinks) = self.0.sinks.lock() {
+        if let Ok(mut sinks) = self.sinks.lock() {
             sinks.entry(topic.name.clone()).or_default().push(sink);
         }
         Ok(())
@@ -442,20 +438,20 @@ impl Transport for MemoryHandle {
 
     fn advertise(&self, topic: &Endpoint) -> Result<Box<dyn Publisher>> {
         Ok(Box::new(MemoryPublisher {
-            transport: self.0.clone(),
+            transport: self.clone(),
             topic: topic.name.clone(),
         }))
     }
 
     fn serve(&self, service: &Endpoint, handler: ServiceHandler) -> Result<()> {
-        if let Ok(mut services) = self.0.services.lock() {
+        if let Ok(mut services) = self.services.lock() {
             services.insert(service.name.clone(), handler);
         }
         Ok(())
     }
 
     fn serve_json(&self, prefix: &str, handler: JsonHandler) -> Result<()> {
-        if let Ok(mut json) = self.0.json.lock() {
+        if let Ok(mut json) = self.json.lock() {
             json.push((prefix.trim_end_matches('/').to_owned(), handler));
         }
         Ok(())

@@ -9,6 +9,13 @@ use groupforward_msgs::sensor_msgs::{CameraInfo, Image};
 use groupforward_msgs::std_msgs::Header;
 use groupforward_msgs::tf2_msgs::TFMessage;
 
+/// Topics the rig records on: the common ROS 2 RGB-D driver layout (and the node's defaults).
+pub const IMAGE_TOPIC: &str = "/camera/color/image_raw";
+pub const CAMERA_INFO_TOPIC: &str = "/camera/color/camera_info";
+pub const DEPTH_TOPIC: &str = "/camera/depth/image_raw";
+pub const TF_TOPIC: &str = "/tf";
+pub const TF_STATIC_TOPIC: &str = "/tf_static";
+
 /// REP-103: `base_link` is x forward, z up; the optical frame is z forward, x right, y down.
 pub const BASE_FROM_OPTICAL: [f64; 4] = [-0.5, 0.5, -0.5, 0.5];
 
@@ -194,6 +201,25 @@ impl TestCard {
     }
 }
 
+impl TestCard {
+    /// A rosbag2 MCAP bag of `frames` frames (depth only if `with_depth`), in memory.
+    pub fn bag(&self, frames: u64, with_depth: bool) -> crate::bag::Result<Vec<u8>> {
+        let mut bag = crate::bag::BagWriter::new(std::io::Cursor::new(Vec::new()))?;
+        bag.write(TF_STATIC_TOPIC, self.stamp(0).as_nanos(), &self.tf_static())?;
+        for index in 0..frames {
+            let frame = self.frame(index);
+            let t = frame.stamp.as_nanos();
+            bag.write(TF_TOPIC, t, &frame.tf)?;
+            bag.write(CAMERA_INFO_TOPIC, t, &frame.camera_info)?;
+            if with_depth {
+                bag.write(DEPTH_TOPIC, t, &frame.depth)?;
+            }
+            bag.write(IMAGE_TOPIC, t, &frame.image)?;
+        }
+        Ok(bag.finish()?.into_inner())
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -211,5 +237,18 @@ mod tests {
         let q = &f.tf.transforms[0].transform.rotation;
         assert!(((q.x * q.x + q.y * q.y + q.z * q.z + q.w * q.w).sqrt() - 1.0).abs() < 1e-12);
         assert_ne!(card.image(0).data, card.image(10).data);
+    }
+
+    #[test]
+    fn bag_holds_every_message_in_time_order() {
+        let card = TestCard::default();
+        let bytes = card.bag(3, true).unwrap();
+        let messages: Vec<_> = mcap::MessageStream::new(&bytes)
+            .unwrap()
+            .map(|m| m.unwrap())
+            .collect();
+        assert_eq!(messages.len(), 1 + 3 * 4);
+        assert!(messages.windows(2).all(|w| w[0].log_time <= w[1].log_time));
+        assert_eq!(messages.last().unwrap().channel.topic, IMAGE_TOPIC);
     }
 }

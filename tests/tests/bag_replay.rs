@@ -13,78 +13,7 @@ use groupforward::demo::{query_json, wait_for};
 use groupforward::replay::{replay_buffers, ReplayOptions};
 use groupforward::transport::{open_session, ZenohTransport};
 use groupforward_msgs::gf_msgs::NodeStatus;
-use groupforward_msgs::idl::EMBEDDED;
-use groupforward_msgs::sensor_msgs::{CameraInfo, Image};
-use groupforward_msgs::tf2_msgs::TFMessage;
-use groupforward_msgs::{cdr, RosMessage};
 use groupforward_sim::testcard::TestCard;
-
-/// A rosbag2-style MCAP: ros2msg schemas, cdr channels with the publisher's type hash.
-struct BagWriter {
-    writer: mcap::Writer<Cursor<Vec<u8>>>,
-    channels: BTreeMap<String, u16>,
-    sequence: u32,
-}
-
-impl BagWriter {
-    fn new() -> Self {
-        Self {
-            writer: mcap::Writer::new(Cursor::new(Vec::new())).unwrap(),
-            channels: BTreeMap::new(),
-            sequence: 0,
-        }
-    }
-
-    fn write<T: RosMessage>(&mut self, topic: &str, log_time: i64, message: &T) {
-        if !self.channels.contains_key(topic) {
-            let (_, pkg, name, text) = EMBEDDED
-                .iter()
-                .find(|(_, p, n, _)| format!("{p}/msg/{n}") == T::TYPE_NAME)
-                .unwrap();
-            let schema = self
-                .writer
-                .add_schema(&format!("{pkg}/msg/{name}"), "ros2msg", text.as_bytes())
-                .unwrap();
-            let metadata =
-                BTreeMap::from([("topic_type_hash".to_owned(), T::type_hash().unwrap())]);
-            let id = self
-                .writer
-                .add_channel(schema, topic, "cdr", &metadata)
-                .unwrap();
-            self.channels.insert(topic.to_owned(), id);
-        }
-        self.sequence += 1;
-        let header = mcap::records::MessageHeader {
-            channel_id: self.channels[topic],
-            sequence: self.sequence,
-            log_time: log_time as u64,
-            publish_time: log_time as u64,
-        };
-        self.writer
-            .write_to_known_channel(&header, &cdr::encode(message).unwrap())
-            .unwrap();
-    }
-
-    fn finish(mut self) -> Vec<u8> {
-        self.writer.finish().unwrap();
-        self.writer.into_inner().into_inner()
-    }
-}
-
-fn testcard_bag(card: &TestCard, frames: u64) -> Vec<u8> {
-    let mut bag = BagWriter::new();
-    let t0 = card.stamp(0).as_nanos();
-    bag.write::<TFMessage>("/tf_static", t0, &card.tf_static());
-    for i in 0..frames {
-        let f = card.frame(i);
-        let t = f.stamp.as_nanos();
-        bag.write::<TFMessage>("/tf", t, &f.tf);
-        bag.write::<CameraInfo>("/camera/color/camera_info", t + 1, &f.camera_info);
-        bag.write::<Image>("/camera/depth/image_raw", t + 2, &f.depth);
-        bag.write::<Image>("/camera/color/image_raw", t + 3, &f.image);
-    }
-    bag.finish()
-}
 
 fn embedded_session() -> zenoh::Session {
     open_session(&ZenohSection {
@@ -138,7 +67,7 @@ fn replayed_bag_syncs_every_frame_and_twice_gives_the_same_counts() {
         ..TestCard::default()
     };
     let frames = 12;
-    let bag = testcard_bag(&card, frames);
+    let bag = card.bag(frames, true).unwrap();
     let first = replay_into_node(&bag, frames);
     let camera = &first.cameras[0];
     assert_eq!(camera.frames_received, frames);
