@@ -1,6 +1,7 @@
 //! Replay → node throughput: 640×480 rgb8 frames (with CameraInfo and TF) from an in-memory MCAP bag,
 //! published over zenoh as fast as possible, through the node's subscriptions, queue, decode,
-//! validation and stamp sync. Reported as frames per second; compare with a 30 Hz camera.
+//! validation and stamp sync (`frames`), side by side with the same messages fed straight into the
+//! pipeline (`ingest_only`). Reported as frames per second; compare with a 30 Hz camera.
 //!
 //! `cargo bench -p groupforward --bench replay_throughput`
 
@@ -79,6 +80,23 @@ fn replay_to_node(c: &mut Criterion) {
                 total += start.elapsed();
             }
             total
+        })
+    });
+    // The same messages straight into the pipeline, no zenoh: the transport's share is the ratio.
+    let routes: std::collections::HashMap<String, Route> =
+        groupforward::ingest::Ingest::routes(&config)
+            .into_iter()
+            .collect();
+    let messages: Vec<(Route, Vec<u8>)> = mcap::MessageStream::new(&bag)
+        .unwrap()
+        .map(|m| m.unwrap())
+        .filter_map(|m| Some((*routes.get(&m.channel.topic)?, m.data.into_owned())))
+        .collect();
+    group.bench_function("ingest_only", |b| {
+        b.iter(|| {
+            let mut node = Node::new(&config);
+            let synced: usize = messages.iter().map(|(r, p)| node.step(*r, p)).sum();
+            assert_eq!(synced, FRAMES as usize);
         })
     });
     group.finish();
