@@ -13,6 +13,7 @@ use groupforward_msgs::tf2_msgs::TFMessage;
 use groupforward_msgs::{cdr, geometry_msgs::TransformStamped};
 
 use crate::config::{CameraConfig, Config, ImageTransport};
+pub use crate::recon::Rigid;
 
 /// Why an input was rejected. The string codes appear in status messages and logs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
@@ -97,35 +98,6 @@ pub struct Intrinsics {
     pub cy: f64,
     pub distortion_model: String,
     pub distortion: Vec<f64>,
-}
-
-/// A rigid transform, named by what it maps at the use site (`world_from_camera`).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Rigid {
-    pub rotation: DQuat,
-    pub translation: DVec3,
-}
-
-impl Rigid {
-    pub const IDENTITY: Self = Self {
-        rotation: DQuat::IDENTITY,
-        translation: DVec3::ZERO,
-    };
-
-    /// `self * other`: apply `other` first.
-    pub fn compose(&self, other: &Self) -> Self {
-        Self {
-            rotation: (self.rotation * other.rotation).normalize(),
-            translation: self.translation + self.rotation * other.translation,
-        }
-    }
-
-    fn lerp(&self, other: &Self, s: f64) -> Self {
-        Self {
-            rotation: self.rotation.slerp(other.rotation, s).normalize(),
-            translation: self.translation.lerp(other.translation, s),
-        }
-    }
 }
 
 /// One camera frame with everything later stages need.

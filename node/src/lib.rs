@@ -3,15 +3,17 @@
 //! Pipeline stages are plain structs over plain data, each testable without a network:
 //! - [`ingest`]: decode, validate and sync camera, depth, camera-info and TF messages by stamp;
 //! - [`node`]: the loop that feeds the stages from a bounded queue and reports status;
+//! - [`recon`]: cameras, Gaussians, the tile rasterizer, gauge alignment and metrics;
 //! - [`transport`]: rmw_zenoh-compatible zenoh transport (and an in-memory one for tests);
 //! - [`replay`]: publish a rosbag2 MCAP bag as a live robot would;
 //! - [`demo`]: everything in one process over an embedded zenoh peer.
 //!
-//! Reconstruction, grouping, the scene graph and referring land as further stages.
+//! Model passes, grouping, the scene graph and referring land as further stages.
 
 pub mod config;
 pub mod demo;
 pub mod ingest;
 pub mod node;
+pub mod recon;
 pub mod replay;
 pub mod transport;

@@ -1,0 +1,78 @@
+//! Reconstruction core (DESIGN §5.1–5.2, §7): cameras and frames, pixel-aligned 3D Gaussians, a
+//! tile rasterizer for any channel set, gauge alignment between model passes, and the metrics every
+//! benchmark reports.
+//!
+//! Conventions: transforms are named by what they map (`world_from_camera` takes camera-frame points
+//! to the world); camera frames are REP-103 optical frames (z forward, x right, y down), which is
+//! also OpenCV's convention; pixel `(u, v)` has its centre at integer coordinates (OpenCV).
+
+pub mod camera;
+pub mod gauge;
+pub mod gaussians;
+pub mod metrics;
+pub mod raster;
+
+use glam::{DMat3, DQuat, DVec3};
+
+/// A rigid transform (rotation then translation).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Rigid {
+    pub rotation: DQuat,
+    pub translation: DVec3,
+}
+
+impl Default for Rigid {
+    fn default() -> Self {
+        Self::IDENTITY
+    }
+}
+
+impl Rigid {
+    pub const IDENTITY: Self = Self {
+        rotation: DQuat::IDENTITY,
+        translation: DVec3::ZERO,
+    };
+
+    pub fn new(rotation: DQuat, translation: DVec3) -> Self {
+        Self {
+            rotation,
+            translation,
+        }
+    }
+
+    /// `self * other`: apply `other` first.
+    pub fn compose(&self, other: &Self) -> Self {
+        Self {
+            rotation: (self.rotation * other.rotation).normalize(),
+            translation: self.translation + self.rotation * other.translation,
+        }
+    }
+
+    pub fn inverse(&self) -> Self {
+        let rotation = self.rotation.inverse();
+        Self {
+            rotation,
+            translation: -(rotation * self.translation),
+        }
+    }
+
+    pub fn transform_point(&self, p: DVec3) -> DVec3 {
+        self.rotation * p + self.translation
+    }
+
+    pub fn rotation_matrix(&self) -> DMat3 {
+        DMat3::from_quat(self.rotation)
+    }
+
+    /// Interpolate: translation linearly, rotation by slerp.
+    pub fn lerp(&self, other: &Self, s: f64) -> Self {
+        Self {
+            rotation: self.rotation.slerp(other.rotation, s).normalize(),
+            translation: self.translation.lerp(other.translation, s),
+        }
+    }
+
+    pub fn is_finite(&self) -> bool {
+        self.rotation.is_finite() && self.translation.is_finite()
+    }
+}

@@ -1,0 +1,949 @@
+//! Tile-based EWA splatting (3DGS / gsplat): project each Gaussian's covariance
+//! `Σ' = J W Σ Wᵀ Jᵀ` plus a 0.3-pixel low-pass, cull at the near plane, sort by depth per tile, and
+//! composite front to back, stopping when transmittance would fall below 1e-4. Any channel set renders
+//! in one pass (colour, embeddings, assignment probabilities), with accumulated alpha and depth.
+//!
+//! The footprint of a Gaussian is the ellipse where its alpha stays ≥ 1/255 (opacity-aware, not a
+//! fixed 3σ), so culling by footprint drops nothing the compositing rule would keep: the result
+//! equals evaluating every Gaussian at every pixel ([`reference`]) up to rounding.
+//! Pixels are centred at integer coordinates (OpenCV). Distortion is not rendered: render into
+//! [`Camera::undistorted`].
+
+use glam::{DMat3, DVec3};
+use rayon::prelude::*;
+
+use super::camera::Camera;
+use super::gaussians::{safe_rotation, GaussianError, Gaussians};
+use super::Rigid;
+
+pub const DEFAULT_TILE_SIZE: usize = 16;
+pub const DEFAULT_NEAR: f64 = 0.01;
+pub const DEFAULT_LOW_PASS: f64 = 0.3;
+pub const ALPHA_MIN: f32 = 1.0 / 255.0;
+pub const ALPHA_MAX: f32 = 0.99;
+pub const TRANSMITTANCE_MIN: f32 = 1e-4;
+/// 3DGS clamps the projection Jacobian for centres this far outside the field of view, so that
+/// off-screen Gaussians do not blow up their screen-space covariance.
+const JACOBIAN_FOV_LIMIT: f64 = 1.3;
+
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum RasterError {
+    #[error(transparent)]
+    Gaussians(#[from] GaussianError),
+    #[error("features have {got} values, expected {expected} ({gaussians} Gaussians × {channels} channels)")]
+    FeatureLength {
+        got: usize,
+        expected: usize,
+        gaussians: usize,
+        channels: usize,
+    },
+    #[error("feature {0} is not finite")]
+    NonFiniteFeature(usize),
+    #[error("camera: {0}")]
+    Camera(#[from] super::camera::CameraError),
+    #[error("camera pose is not finite")]
+    BadPose,
+    #[error("settings: {0}")]
+    Settings(&'static str),
+}
+
+pub type Result<T> = std::result::Result<T, RasterError>;
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RasterSettings {
+    pub tile_size: usize,
+    /// Gaussians with camera depth at or below this are culled.
+    pub near: f64,
+    /// Added to the projected covariance's diagonal (pixels²): keeps near-singular footprints
+    /// invertible and anti-aliases sub-pixel Gaussians.
+    pub low_pass: f64,
+}
+
+impl Default for RasterSettings {
+    fn default() -> Self {
+        Self {
+            tile_size: DEFAULT_TILE_SIZE,
+            near: DEFAULT_NEAR,
+            low_pass: DEFAULT_LOW_PASS,
+        }
+    }
+}
+
+/// A rendered view: `channels` values per pixel (row-major), accumulated alpha, and depth
+/// (alpha-normalised expected camera depth; 0 where nothing was rendered).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Render {
+    pub width: usize,
+    pub height: usize,
+    pub channels: usize,
+    pub features: Vec<f32>,
+    pub alpha: Vec<f32>,
+    pub depth: Vec<f32>,
+}
+
+/// A Gaussian in screen space.
+#[derive(Debug, Clone, Copy)]
+struct Splat {
+    mean: [f32; 2],
+    /// Inverse 2D covariance (a, b, c): power = -½(a dx² + c dy²) - b dx dy.
+    conic: [f32; 3],
+    opacity: f32,
+    depth: f64,
+    /// Inclusive pixel bounds of the footprint, clipped to the image.
+    x0: usize,
+    x1: usize,
+    y0: usize,
+    y1: usize,
+}
+
+fn check_inputs(
+    g: &Gaussians,
+    features: &[f32],
+    channels: usize,
+    camera: &Camera,
+    camera_from_world: &Rigid,
+    settings: &RasterSettings,
+) -> Result<()> {
+    g.validate()?;
+    let expected = g.len() * channels;
+    if features.len() != expected {
+        return Err(RasterError::FeatureLength {
+            got: features.len(),
+            expected,
+            gaussians: g.len(),
+            channels,
+        });
+    }
+    if let Some(i) = features.iter().position(|v| !v.is_finite()) {
+        return Err(RasterError::NonFiniteFeature(i));
+    }
+    camera.validate()?;
+    if !camera_from_world.is_finite() {
+        return Err(RasterError::BadPose);
+    }
+    if settings.tile_size == 0 {
+        return Err(RasterError::Settings("tile_size must be at least 1"));
+    }
+    if !(settings.near > 0.0
+        && settings.near.is_finite()
+        && settings.low_pass > 0.0
+        && settings.low_pass.is_finite())
+    {
+        return Err(RasterError::Settings(
+            "near and low_pass must be positive and finite",
+        ));
+    }
+    Ok(())
+}
+
+/// World covariance R S Sᵀ Rᵀ of Gaussian `i` (scales' signs ignored, rotation normalised).
+pub(crate) fn world_covariance(g: &Gaussians, i: usize) -> DMat3 {
+    let r = DMat3::from_quat(safe_rotation(g.rotations[i]).as_dquat());
+    let s = g.scales[i].abs().as_dvec3();
+    let m = r * DMat3::from_diagonal(s);
+    m * m.transpose()
+}
+
+fn project(
+    g: &Gaussians,
+    i: usize,
+    camera: &Camera,
+    camera_from_world: &Rigid,
+    settings: &RasterSettings,
+) -> Option<Splat> {
+    let opacity = g.opacities[i];
+    if opacity.is_nan() || opacity < ALPHA_MIN {
+        return None; // can never reach the alpha threshold
+    }
+    let p = camera_from_world.transform_point(g.means[i].as_dvec3());
+    if p.z.is_nan() || p.z <= settings.near {
+        return None;
+    }
+    let (w, h) = (f64::from(camera.width), f64::from(camera.height));
+    let lim_x = JACOBIAN_FOV_LIMIT * camera.cx.max(w - camera.cx) / camera.fx;
+    let lim_y = JACOBIAN_FOV_LIMIT * camera.cy.max(h - camera.cy) / camera.fy;
+    let tx = (p.x / p.z).clamp(-lim_x, lim_x);
+    let ty = (p.y / p.z).clamp(-lim_y, lim_y);
+    // Rows of J W: the projection Jacobian applied to the camera rotation.
+    let rot = camera_from_world.rotation_matrix();
+    let j0 = DVec3::new(camera.fx / p.z, 0.0, -camera.fx * tx / p.z);
+    let j1 = DVec3::new(0.0, camera.fy / p.z, -camera.fy * ty / p.z);
+    let t0 = rot.transpose() * j0;
+    let t1 = rot.transpose() * j1;
+    let sigma = world_covariance(g, i);
+    let a = t0.dot(sigma * t0) + settings.low_pass;
+    let b = t0.dot(sigma * t1);
+    let c = t1.dot(sigma * t1) + settings.low_pass;
+    let det = a * c - b * b;
+    if !(det > 0.0 && det.is_finite()) {
+        return None;
+    }
+    let mean_x = camera.fx * p.x / p.z + camera.cx;
+    let mean_y = camera.fy * p.y / p.z + camera.cy;
+    // Mahalanobis radius where opacity · exp(-r²/2) = ALPHA_MIN; the ellipse's bounding box has
+    // half-widths r·√Σ'xx and r·√Σ'yy. One pixel of margin absorbs rounding.
+    let r2 = 2.0 * (f64::from(opacity) / f64::from(ALPHA_MIN)).ln().max(0.0);
+    let half_x = (r2 * a).sqrt() + 1.0;
+    let half_y = (r2 * c).sqrt() + 1.0;
+    if mean_x + half_x < 0.0
+        || mean_y + half_y < 0.0
+        || mean_x - half_x > w - 1.0
+        || mean_y - half_y > h - 1.0
+    {
+        return None;
+    }
+    if !(mean_x.is_finite() && mean_y.is_finite()) {
+        return None;
+    }
+    let clip = |v: f64, max: f64| v.clamp(0.0, max) as usize;
+    Some(Splat {
+        mean: [mean_x as f32, mean_y as f32],
+        conic: [(c / det) as f32, (-b / det) as f32, (a / det) as f32],
+        opacity,
+        depth: p.z,
+        x0: clip((mean_x - half_x).ceil(), w - 1.0),
+        x1: clip((mean_x + half_x).floor(), w - 1.0),
+        y0: clip((mean_y - half_y).ceil(), h - 1.0),
+        y1: clip((mean_y + half_y).floor(), h - 1.0),
+    })
+}
+
+/// Render `channels` feature values per Gaussian (`features`, Gaussian-major) into `camera`
+/// seen from `camera_from_world`. Deterministic: the same inputs give bit-identical outputs
+/// whatever the thread count.
+pub fn render(
+    g: &Gaussians,
+    features: &[f32],
+    channels: usize,
+    camera: &Camera,
+    camera_from_world: &Rigid,
+    settings: &RasterSettings,
+) -> Result<Render> {
+    check_inputs(g, features, channels, camera, camera_from_world, settings)?;
+    let (width, height) = (camera.width as usize, camera.height as usize);
+    let tile = settings.tile_size;
+    let (tiles_x, tiles_y) = (width.div_ceil(tile), height.div_ceil(tile));
+
+    let splats: Vec<Option<Splat>> = (0..g.len())
+        .into_par_iter()
+        .map(|i| project(g, i, camera, camera_from_world, settings))
+        .collect();
+    // (tile, depth, index) for every tile a footprint touches; sorting gives each tile its
+    // Gaussians front to back, ties broken by index so the order never depends on threads.
+    let mut keys: Vec<(u32, f64, u32)> = Vec::new();
+    for (i, splat) in splats.iter().enumerate() {
+        let Some(s) = splat else { continue };
+        for ty in s.y0 / tile..=s.y1 / tile {
+            for tx in s.x0 / tile..=s.x1 / tile {
+                keys.push(((ty * tiles_x + tx) as u32, s.depth, i as u32));
+            }
+        }
+    }
+    keys.par_sort_unstable_by(|a, b| a.0.cmp(&b.0).then(a.1.total_cmp(&b.1)).then(a.2.cmp(&b.2)));
+    let mut ranges = vec![(0usize, 0usize); tiles_x * tiles_y];
+    let mut start = 0;
+    while start < keys.len() {
+        let t = keys[start].0;
+        let mut end = start;
+        while end < keys.len() && keys[end].0 == t {
+            end += 1;
+        }
+        ranges[t as usize] = (start, end);
+        start = end;
+    }
+
+    let tiles: Vec<TileOutput> = (0..tiles_x * tiles_y)
+        .into_par_iter()
+        .map(|t| {
+            let (tx, ty) = (t % tiles_x, t / tiles_x);
+            let bounds = TileBounds {
+                x0: tx * tile,
+                y0: ty * tile,
+                x1: ((tx + 1) * tile).min(width),
+                y1: ((ty + 1) * tile).min(height),
+            };
+            let (a, b) = ranges[t];
+            let order = keys[a..b].iter().map(|k| k.2 as usize);
+            composite_tile(&bounds, order, &splats, features, channels)
+        })
+        .collect();
+
+    let mut out = Render {
+        width,
+        height,
+        channels,
+        features: vec![0.0; width * height * channels],
+        alpha: vec![0.0; width * height],
+        depth: vec![0.0; width * height],
+    };
+    for tile_out in tiles {
+        let b = &tile_out.bounds;
+        let tw = b.x1 - b.x0;
+        for y in b.y0..b.y1 {
+            for x in b.x0..b.x1 {
+                let local = (y - b.y0) * tw + (x - b.x0);
+                let pixel = y * width + x;
+                let transmittance = tile_out.transmittance[local];
+                let alpha = 1.0 - transmittance;
+                out.alpha[pixel] = alpha;
+                out.depth[pixel] = if alpha > 0.0 {
+                    tile_out.depth[local] / alpha
+                } else {
+                    0.0
+                };
+                out.features[pixel * channels..(pixel + 1) * channels]
+                    .copy_from_slice(&tile_out.features[local * channels..(local + 1) * channels]);
+            }
+        }
+    }
+    Ok(out)
+}
+
+#[derive(Debug)]
+struct TileBounds {
+    x0: usize,
+    y0: usize,
+    x1: usize,
+    y1: usize,
+}
+
+#[derive(Debug)]
+struct TileOutput {
+    bounds: TileBounds,
+    transmittance: Vec<f32>,
+    depth: Vec<f32>,
+    features: Vec<f32>,
+}
+
+/// Composite a tile Gaussian by Gaussian (front to back), touching only the pixels of each
+/// footprint; per pixel this is exactly the front-to-back loop of 3DGS.
+fn composite_tile(
+    b: &TileBounds,
+    order: impl Iterator<Item = usize>,
+    splats: &[Option<Splat>],
+    features: &[f32],
+    channels: usize,
+) -> TileOutput {
+    let tw = b.x1 - b.x0;
+    let n = tw * (b.y1 - b.y0);
+    let mut transmittance = vec![1.0f32; n];
+    let mut done = vec![false; n];
+    let mut depth = vec![0.0f32; n];
+    let mut acc = vec![0.0f32; n * channels];
+    let mut remaining = n;
+    for i in order {
+        if remaining == 0 {
+            break;
+        }
+        let Some(s) = &splats[i] else { continue };
+        let feature = &features[i * channels..(i + 1) * channels];
+        let (x0, x1) = (s.x0.max(b.x0), s.x1.min(b.x1 - 1));
+        let (y0, y1) = (s.y0.max(b.y0), s.y1.min(b.y1 - 1));
+        if x0 > x1 || y0 > y1 {
+            continue;
+        }
+        for y in y0..=y1 {
+            let dy = y as f32 - s.mean[1];
+            for x in x0..=x1 {
+                let local = (y - b.y0) * tw + (x - b.x0);
+                if done[local] {
+                    continue;
+                }
+                let dx = x as f32 - s.mean[0];
+                let power =
+                    -0.5 * (s.conic[0] * dx * dx + s.conic[2] * dy * dy) - s.conic[1] * dx * dy;
+                if power > 0.0 {
+                    continue;
+                }
+                let alpha = (s.opacity * power.exp()).min(ALPHA_MAX);
+                if alpha < ALPHA_MIN {
+                    continue;
+                }
+                let t = transmittance[local];
+                let next = t * (1.0 - alpha);
+                if next < TRANSMITTANCE_MIN {
+                    done[local] = true;
+                    remaining -= 1;
+                    continue;
+                }
+                let weight = alpha * t;
+                for (a, f) in acc[local * channels..(local + 1) * channels]
+                    .iter_mut()
+                    .zip(feature)
+                {
+                    *a += f * weight;
+                }
+                depth[local] += s.depth as f32 * weight;
+                transmittance[local] = next;
+            }
+        }
+    }
+    TileOutput {
+        bounds: TileBounds {
+            x0: b.x0,
+            y0: b.y0,
+            x1: b.x1,
+            y1: b.y1,
+        },
+        transmittance,
+        depth,
+        features: acc,
+    }
+}
+
+/// Brute force in f64: every Gaussian at every pixel, sorted by depth, with the same compositing
+/// rules. Written independently of the tile path (its own projection), to check it and to measure
+/// its speed-up; far too slow for use.
+pub mod reference {
+    use super::*;
+
+    #[allow(clippy::needless_range_loop)] // explicit matrix indices read as the formula
+    pub fn render(
+        g: &Gaussians,
+        features: &[f32],
+        channels: usize,
+        camera: &Camera,
+        camera_from_world: &Rigid,
+        settings: &RasterSettings,
+    ) -> Result<Render> {
+        check_inputs(g, features, channels, camera, camera_from_world, settings)?;
+        let (width, height) = (camera.width as usize, camera.height as usize);
+        let r = camera_from_world.rotation_matrix();
+        // (depth, index, mean, inverse covariance) of every Gaussian in front of the near plane.
+        let mut visible: Vec<(f64, usize, [f64; 2], [f64; 3])> = Vec::new();
+        for i in 0..g.len() {
+            let p = r * g.means[i].as_dvec3() + camera_from_world.translation;
+            if p.z <= settings.near {
+                continue;
+            }
+            let lim_x =
+                JACOBIAN_FOV_LIMIT * camera.cx.max(f64::from(camera.width) - camera.cx) / camera.fx;
+            let lim_y = JACOBIAN_FOV_LIMIT * camera.cy.max(f64::from(camera.height) - camera.cy)
+                / camera.fy;
+            let (tx, ty) = (
+                (p.x / p.z).clamp(-lim_x, lim_x),
+                (p.y / p.z).clamp(-lim_y, lim_y),
+            );
+            // J (2×3) and Σ' = J R Σ Rᵀ Jᵀ, written out with matrices.
+            let j = [
+                [camera.fx / p.z, 0.0, -camera.fx * tx / p.z],
+                [0.0, camera.fy / p.z, -camera.fy * ty / p.z],
+            ];
+            let sigma_camera = r * world_covariance(g, i) * r.transpose();
+            let mut cov = [[0.0f64; 2]; 2];
+            for (row, jr) in j.iter().enumerate() {
+                for (col, jc) in j.iter().enumerate() {
+                    let mut sum = 0.0;
+                    for k in 0..3 {
+                        for l in 0..3 {
+                            sum += jr[k] * sigma_camera.col(l)[k] * jc[l];
+                        }
+                    }
+                    cov[row][col] = sum;
+                }
+            }
+            cov[0][0] += settings.low_pass;
+            cov[1][1] += settings.low_pass;
+            let det = cov[0][0] * cov[1][1] - cov[0][1] * cov[1][0];
+            if det <= 0.0 {
+                continue;
+            }
+            let inverse = [cov[1][1] / det, -cov[0][1] / det, cov[0][0] / det];
+            let mean = [
+                camera.fx * p.x / p.z + camera.cx,
+                camera.fy * p.y / p.z + camera.cy,
+            ];
+            visible.push((p.z, i, mean, inverse));
+        }
+        visible.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        let mut out = Render {
+            width,
+            height,
+            channels,
+            features: vec![0.0; width * height * channels],
+            alpha: vec![0.0; width * height],
+            depth: vec![0.0; width * height],
+        };
+        let mut acc = vec![0.0f64; channels];
+        for y in 0..height {
+            for x in 0..width {
+                let mut t = 1.0f64;
+                let mut depth = 0.0f64;
+                acc.iter_mut().for_each(|a| *a = 0.0);
+                for (z, i, mean, inv) in &visible {
+                    let (dx, dy) = (x as f64 - mean[0], y as f64 - mean[1]);
+                    let power = -0.5 * (inv[0] * dx * dx + inv[2] * dy * dy) - inv[1] * dx * dy;
+                    if power > 0.0 {
+                        continue;
+                    }
+                    let alpha =
+                        (f64::from(g.opacities[*i]) * power.exp()).min(f64::from(ALPHA_MAX));
+                    if alpha < f64::from(ALPHA_MIN) {
+                        continue;
+                    }
+                    let next = t * (1.0 - alpha);
+                    if next < f64::from(TRANSMITTANCE_MIN) {
+                        break;
+                    }
+                    for (c, a) in acc.iter_mut().enumerate() {
+                        *a += f64::from(features[i * channels + c]) * alpha * t;
+                    }
+                    depth += z * alpha * t;
+                    t = next;
+                }
+                let pixel = y * width + x;
+                let alpha = 1.0 - t;
+                out.alpha[pixel] = alpha as f32;
+                out.depth[pixel] = if alpha > 0.0 {
+                    (depth / alpha) as f32
+                } else {
+                    0.0
+                };
+                for (c, a) in acc.iter().enumerate() {
+                    out.features[pixel * channels + c] = *a as f32;
+                }
+            }
+        }
+        Ok(out)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::{DQuat, Quat, Vec3};
+    use proptest::prelude::*;
+
+    /// A small deterministic pseudo-random generator, so scenes need no extra dependency.
+    struct Lcg(u64);
+
+    impl Lcg {
+        fn next(&mut self) -> f32 {
+            self.0 = self
+                .0
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            ((self.0 >> 40) as f32) / (1u64 << 24) as f32
+        }
+
+        fn range(&mut self, lo: f32, hi: f32) -> f32 {
+            lo + (hi - lo) * self.next()
+        }
+    }
+
+    fn camera() -> Camera {
+        Camera::pinhole(48, 36, 40.0, 42.0, 23.5, 17.0).unwrap()
+    }
+
+    /// `n` Gaussians in front of a camera at the origin looking down +z, with `c` channels.
+    fn scene(seed: u64, n: usize, c: usize) -> (Gaussians, Vec<f32>) {
+        let mut rng = Lcg(seed);
+        let mut g = Gaussians::with_dims(0, 0);
+        let mut features = Vec::new();
+        for _ in 0..n {
+            let z = rng.range(1.0, 6.0);
+            let mean = Vec3::new(rng.range(-0.7, 0.7) * z, rng.range(-0.5, 0.5) * z, z);
+            let scale = Vec3::new(
+                rng.range(0.01, 0.3),
+                rng.range(0.01, 0.3),
+                rng.range(0.001, 0.2),
+            );
+            let rotation = Quat::from_xyzw(
+                rng.range(-1.0, 1.0),
+                rng.range(-1.0, 1.0),
+                rng.range(-1.0, 1.0),
+                rng.range(-1.0, 1.0),
+            );
+            g.push(
+                mean,
+                rng.range(0.05, 1.0),
+                scale,
+                rotation,
+                Vec3::ONE,
+                &[],
+                &[],
+            );
+            features.extend((0..c).map(|_| rng.next()));
+        }
+        (g, features)
+    }
+
+    fn pose() -> Rigid {
+        Rigid::IDENTITY
+    }
+
+    fn relative_error(fast: &[f32], reference: &[f32]) -> f64 {
+        let max_ref = reference
+            .iter()
+            .fold(0.0f64, |m, v| m.max(f64::from(v.abs())));
+        let max_diff = fast
+            .iter()
+            .zip(reference)
+            .fold(0.0f64, |m, (a, b)| m.max(f64::from((a - b).abs())));
+        max_diff / max_ref.max(1e-12)
+    }
+
+    fn assert_valid(r: &Render) {
+        assert!(r.features.iter().all(|v| v.is_finite()));
+        assert!(r.alpha.iter().all(|a| (0.0..=1.0).contains(a)));
+        assert!(r
+            .depth
+            .iter()
+            .zip(&r.alpha)
+            .all(|(d, a)| d.is_finite() && *d >= 0.0 && (*a == 0.0 || *d > 0.0)));
+    }
+
+    #[test]
+    fn tile_renderer_matches_brute_force_reference_on_random_scenes() {
+        for (seed, n, c) in [(1, 40, 3), (2, 150, 8), (3, 300, 4), (4, 5, 1)] {
+            let (g, features) = scene(seed, n, c);
+            let settings = RasterSettings::default();
+            let fast = render(&g, &features, c, &camera(), &pose(), &settings).unwrap();
+            let slow = reference::render(&g, &features, c, &camera(), &pose(), &settings).unwrap();
+            let errors = [
+                relative_error(&fast.features, &slow.features),
+                relative_error(&fast.alpha, &slow.alpha),
+                relative_error(&fast.depth, &slow.depth),
+            ];
+            assert!(
+                errors.iter().all(|e| *e <= 1e-4),
+                "seed {seed}: relative errors {errors:?}"
+            );
+            assert!(
+                fast.alpha.iter().any(|a| *a > 0.5),
+                "seed {seed}: scene should cover pixels"
+            );
+            assert_valid(&fast);
+        }
+    }
+
+    #[test]
+    fn the_comparison_is_sensitive_to_a_small_change() {
+        // A 3% different low-pass filter is far outside the tolerance: the check above has teeth.
+        let (g, features) = scene(1, 40, 3);
+        let fast = render(
+            &g,
+            &features,
+            3,
+            &camera(),
+            &pose(),
+            &RasterSettings::default(),
+        )
+        .unwrap();
+        let other = RasterSettings {
+            low_pass: 0.31,
+            ..RasterSettings::default()
+        };
+        let slow = reference::render(&g, &features, 3, &camera(), &pose(), &other).unwrap();
+        assert!(relative_error(&fast.features, &slow.features) > 1e-3);
+    }
+
+    #[test]
+    fn odd_tile_sizes_and_rotated_cameras_match_the_reference() {
+        let (g, features) = scene(7, 120, 3);
+        let settings = RasterSettings {
+            tile_size: 7,
+            ..RasterSettings::default()
+        };
+        let camera_from_world = Rigid::new(
+            DQuat::from_rotation_y(0.2) * DQuat::from_rotation_z(0.4),
+            glam::DVec3::new(0.1, -0.2, 0.5),
+        );
+        let fast = render(&g, &features, 3, &camera(), &camera_from_world, &settings).unwrap();
+        let slow =
+            reference::render(&g, &features, 3, &camera(), &camera_from_world, &settings).unwrap();
+        assert!(relative_error(&fast.features, &slow.features) <= 1e-4);
+    }
+
+    #[test]
+    fn rendering_is_deterministic_across_thread_counts() {
+        let (g, features) = scene(11, 400, 5);
+        let run = |threads| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap()
+                .install(|| {
+                    render(
+                        &g,
+                        &features,
+                        5,
+                        &camera(),
+                        &pose(),
+                        &RasterSettings::default(),
+                    )
+                    .unwrap()
+                })
+        };
+        assert_eq!(run(1), run(2));
+        assert_eq!(run(2), run(3));
+    }
+
+    fn single(mean: Vec3, opacity: f32, scale: Vec3, rotation: Quat) -> Render {
+        let mut g = Gaussians::with_dims(0, 0);
+        g.push(mean, opacity, scale, rotation, Vec3::ONE, &[], &[]);
+        let r = render(
+            &g,
+            &[1.0],
+            1,
+            &camera(),
+            &pose(),
+            &RasterSettings::default(),
+        )
+        .unwrap();
+        assert_valid(&r);
+        let slow = reference::render(
+            &g,
+            &[1.0],
+            1,
+            &camera(),
+            &pose(),
+            &RasterSettings::default(),
+        )
+        .unwrap();
+        assert!(
+            relative_error(&r.alpha, &slow.alpha) <= 1e-4 || slow.alpha.iter().all(|a| *a == 0.0)
+        );
+        r
+    }
+
+    fn covered(r: &Render) -> usize {
+        r.alpha.iter().filter(|a| **a > 0.0).count()
+    }
+
+    #[test]
+    fn degenerate_scales_stay_finite() {
+        let centre = Vec3::new(0.0, 0.0, 2.0);
+        for scale in [
+            Vec3::ZERO,
+            Vec3::splat(-0.1),
+            Vec3::splat(1e-9),
+            Vec3::splat(1e6),
+            Vec3::new(0.5, 0.5, 0.0),
+        ] {
+            let r = single(centre, 0.9, scale, Quat::IDENTITY);
+            assert!(covered(&r) > 0, "scale {scale} renders something");
+        }
+        // Zero scale is the low-pass footprint: a few pixels, not nothing and not everything.
+        assert!(covered(&single(centre, 0.9, Vec3::ZERO, Quat::IDENTITY)) < 30);
+        // Negative scales are their absolute values.
+        assert_eq!(
+            single(centre, 0.9, Vec3::splat(-0.1), Quat::IDENTITY),
+            single(centre, 0.9, Vec3::splat(0.1), Quat::IDENTITY)
+        );
+    }
+
+    #[test]
+    fn zero_and_non_unit_quaternions_are_handled() {
+        let centre = Vec3::new(0.1, 0.0, 2.0);
+        let scale = Vec3::new(0.3, 0.05, 0.05);
+        let zero = single(centre, 0.8, scale, Quat::from_xyzw(0.0, 0.0, 0.0, 0.0));
+        let identity = single(centre, 0.8, scale, Quat::IDENTITY);
+        assert_eq!(zero, identity);
+        let scaled = single(centre, 0.8, scale, Quat::from_xyzw(0.0, 0.0, 3.0, 3.0));
+        let unit = single(
+            centre,
+            0.8,
+            scale,
+            Quat::from_xyzw(0.0, 0.0, 1.0, 1.0).normalize(),
+        );
+        assert_eq!(scaled, unit);
+    }
+
+    #[test]
+    fn gaussians_behind_on_and_far_from_the_near_plane() {
+        let scale = Vec3::splat(0.1);
+        assert_eq!(
+            covered(&single(
+                Vec3::new(0.0, 0.0, -1.0),
+                1.0,
+                scale,
+                Quat::IDENTITY
+            )),
+            0
+        );
+        assert_eq!(
+            covered(&single(
+                Vec3::new(0.0, 0.0, DEFAULT_NEAR as f32),
+                1.0,
+                scale,
+                Quat::IDENTITY
+            )),
+            0
+        );
+        assert_eq!(
+            covered(&single(
+                Vec3::new(0.0, 0.0, 1e-6),
+                1.0,
+                scale,
+                Quat::IDENTITY
+            )),
+            0
+        );
+        let far = single(Vec3::new(0.0, 0.0, 1e6), 1.0, scale, Quat::IDENTITY);
+        assert!(covered(&far) > 0 && covered(&far) < 30);
+        let at = 17 * 48 + 24;
+        assert!((far.depth[at] - 1e6).abs() / 1e6 < 1e-5);
+    }
+
+    #[test]
+    fn opacity_zero_and_one() {
+        let centre = Vec3::new(0.0, 0.0, 2.0);
+        assert_eq!(
+            covered(&single(centre, 0.0, Vec3::splat(0.2), Quat::IDENTITY)),
+            0
+        );
+        let opaque = single(centre, 1.0, Vec3::splat(0.2), Quat::IDENTITY);
+        // Alpha is capped at 0.99 per Gaussian.
+        assert!(opaque.alpha.iter().all(|a| *a <= 0.99 + 1e-6));
+        assert!(opaque.alpha.iter().any(|a| *a > 0.98));
+    }
+
+    #[test]
+    fn centres_on_tile_borders_and_whole_image_gaussians() {
+        // Pixel (16, 16) is a tile corner: its pixel and its neighbours across the border all see it.
+        let camera = camera();
+        let z = 2.0;
+        let on_border = Vec3::new(
+            ((16.0 - camera.cx) / camera.fx * z) as f32,
+            ((16.0 - camera.cy) / camera.fy * z) as f32,
+            z as f32,
+        );
+        let r = single(on_border, 0.9, Vec3::splat(0.02), Quat::IDENTITY);
+        let at = |x: usize, y: usize| r.alpha[y * 48 + x];
+        assert!(at(16, 16) > 0.5 && (at(15, 15) - at(17, 17)).abs() < 1e-3 && at(15, 16) > 0.0);
+        let whole = single(
+            Vec3::new(0.0, 0.0, 1.0),
+            0.9,
+            Vec3::splat(50.0),
+            Quat::IDENTITY,
+        );
+        assert_eq!(covered(&whole), 48 * 36);
+    }
+
+    #[test]
+    fn empty_scenes_render_nothing_and_bad_inputs_are_errors() {
+        let empty = render(
+            &Gaussians::default(),
+            &[],
+            4,
+            &camera(),
+            &pose(),
+            &RasterSettings::default(),
+        )
+        .unwrap();
+        assert!(empty.alpha.iter().all(|a| *a == 0.0) && empty.features.iter().all(|f| *f == 0.0));
+        let (mut g, features) = scene(5, 3, 2);
+        assert!(matches!(
+            render(
+                &g,
+                &features[..5],
+                2,
+                &camera(),
+                &pose(),
+                &RasterSettings::default()
+            ),
+            Err(RasterError::FeatureLength { .. })
+        ));
+        let mut nan_features = features.clone();
+        nan_features[1] = f32::NAN;
+        assert!(matches!(
+            render(
+                &g,
+                &nan_features,
+                2,
+                &camera(),
+                &pose(),
+                &RasterSettings::default()
+            ),
+            Err(RasterError::NonFiniteFeature(1))
+        ));
+        let bad_pose = Rigid::new(DQuat::IDENTITY, glam::DVec3::new(f64::INFINITY, 0.0, 0.0));
+        assert!(matches!(
+            render(
+                &g,
+                &features,
+                2,
+                &camera(),
+                &bad_pose,
+                &RasterSettings::default()
+            ),
+            Err(RasterError::BadPose)
+        ));
+        g.means[0].x = f32::NAN;
+        assert!(matches!(
+            render(
+                &g,
+                &features,
+                2,
+                &camera(),
+                &pose(),
+                &RasterSettings::default()
+            ),
+            Err(RasterError::Gaussians(_))
+        ));
+    }
+
+    #[test]
+    fn rendered_probabilities_sum_to_at_most_one() {
+        let (g, _) = scene(9, 200, 0);
+        let k = 4;
+        let mut rng = Lcg(3);
+        let mut probabilities = Vec::new();
+        for _ in 0..g.len() {
+            let raw: Vec<f32> = (0..k).map(|_| rng.next()).collect();
+            let sum: f32 = raw.iter().sum();
+            probabilities.extend(raw.iter().map(|v| v / sum));
+        }
+        let r = render(
+            &g,
+            &probabilities,
+            k,
+            &camera(),
+            &pose(),
+            &RasterSettings::default(),
+        )
+        .unwrap();
+        for (pixel, alpha) in r.alpha.iter().enumerate() {
+            let sum: f32 = r.features[pixel * k..(pixel + 1) * k].iter().sum();
+            assert!(sum <= 1.0 + 1e-5 && (sum - alpha).abs() < 1e-4);
+        }
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(64))]
+
+        #[test]
+        fn any_finite_gaussians_render_finite_and_in_range(
+            means in prop::collection::vec((-5f32..5.0, -5f32..5.0, -2f32..1e3), 0..20),
+            scales in prop::collection::vec((-1e3f32..1e3, 0f32..1e-3, 0f32..1e6), 20),
+            opacities in prop::collection::vec(-0.5f32..1.5, 20),
+            quats in prop::collection::vec((-1f32..1.0, -1f32..1.0, -1f32..1.0, -1f32..1.0), 20),
+        ) {
+            let mut g = Gaussians::with_dims(0, 0);
+            for (i, m) in means.iter().enumerate() {
+                let s = scales[i];
+                let q = quats[i];
+                g.push(Vec3::new(m.0, m.1, m.2), opacities[i], Vec3::new(s.0, s.1, s.2), Quat::from_xyzw(q.0, q.1, q.2, q.3), Vec3::ONE, &[], &[]);
+            }
+            let features = vec![0.5; g.len() * 2];
+            let r = render(&g, &features, 2, &camera(), &pose(), &RasterSettings::default()).unwrap();
+            assert_valid(&r);
+        }
+
+        #[test]
+        fn result_does_not_depend_on_gaussian_order(seed in 0u64..1000, rotate in 1usize..30) {
+            let (g, features) = scene(seed, 30, 2);
+            let order: Vec<usize> = (0..30).map(|i| (i + rotate) % 30).collect();
+            let mut shuffled = Gaussians::with_dims(0, 0);
+            let mut shuffled_features = Vec::new();
+            for &i in &order {
+                shuffled.push(g.means[i], g.opacities[i], g.scales[i], g.rotations[i], g.colors[i], &[], &[]);
+                shuffled_features.extend_from_slice(&features[i * 2..i * 2 + 2]);
+            }
+            let a = render(&g, &features, 2, &camera(), &pose(), &RasterSettings::default()).unwrap();
+            let b = render(&shuffled, &shuffled_features, 2, &camera(), &pose(), &RasterSettings::default()).unwrap();
+            prop_assert_eq!(a, b);
+        }
+    }
+}
