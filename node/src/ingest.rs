@@ -1,5 +1,5 @@
 //! Ingest: decode and validate camera, depth, camera-info and TF messages, and sync them by stamp
-//! into [`SyncedFrame`]s (colour + optional depth + intrinsics + `world_from_camera` from TF).
+//! into [`SyncedFrame`]s (colour + optional depth + camera model + `world_from_camera` from TF).
 //!
 //! Every malformed input is rejected with a reason code, counted, and logged once per reason; no
 //! input can make this stage panic. Time is stamp time, never wall time, so a replayed bag syncs
@@ -13,6 +13,7 @@ use groupforward_msgs::tf2_msgs::TFMessage;
 use groupforward_msgs::{cdr, geometry_msgs::TransformStamped};
 
 use crate::config::{CameraConfig, Config, ImageTransport};
+use crate::recon::camera::{Camera, PlumbBob};
 pub use crate::recon::Rigid;
 
 /// Why an input was rejected. The string codes appear in status messages and logs.
@@ -24,6 +25,7 @@ pub enum Reject {
     SizeMismatch,
     CompressedDecodeFailed,
     BadIntrinsics,
+    UnsupportedDistortion,
     CameraInfoMismatch,
     NonFiniteTransform,
     NonUnitQuaternion,
@@ -44,6 +46,7 @@ impl Reject {
             Self::SizeMismatch => "size_mismatch",
             Self::CompressedDecodeFailed => "compressed_decode_failed",
             Self::BadIntrinsics => "bad_intrinsics",
+            Self::UnsupportedDistortion => "unsupported_distortion",
             Self::CameraInfoMismatch => "camera_info_mismatch",
             Self::NonFiniteTransform => "non_finite_transform",
             Self::NonUnitQuaternion => "non_unit_quaternion",
@@ -87,29 +90,18 @@ pub struct DepthImage {
     pub metres: Vec<f32>,
 }
 
-/// Pinhole intrinsics plus the distortion the camera reported.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Intrinsics {
-    pub width: u32,
-    pub height: u32,
-    pub fx: f64,
-    pub fy: f64,
-    pub cx: f64,
-    pub cy: f64,
-    pub distortion_model: String,
-    pub distortion: Vec<f64>,
-}
-
 /// One camera frame with everything later stages need.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SyncedFrame {
-    pub camera: String,
+    /// Name of the configured camera.
+    pub camera_name: String,
     pub stamp_nanos: i64,
     /// The image's optical frame (REP-103: z forward, x right, y down).
     pub frame_id: String,
     pub rgb: RgbImage,
     pub depth: Option<DepthImage>,
-    pub intrinsics: Intrinsics,
+    /// Validated intrinsics and distortion from the latest CameraInfo.
+    pub camera: Camera,
     pub world_from_camera: Rigid,
 }
 
@@ -286,8 +278,8 @@ pub fn decode_depth(msg: &Image, max_side: u32) -> Result<DepthImage, Rejection>
     })
 }
 
-/// Validate a `CameraInfo` into intrinsics.
-pub fn validate_camera_info(msg: &CameraInfo, max_side: u32) -> Result<Intrinsics, Rejection> {
+/// Validate a `CameraInfo` into a camera model.
+pub fn validate_camera_info(msg: &CameraInfo, max_side: u32) -> Result<Camera, Rejection> {
     check_dimensions(msg.width, msg.height, max_side)?;
     let finite = msg
         .k
@@ -302,15 +294,18 @@ pub fn validate_camera_info(msg: &CameraInfo, max_side: u32) -> Result<Intrinsic
             format!("K = {:?}, D = {:?}", msg.k, msg.d),
         );
     }
-    Ok(Intrinsics {
+    let distortion = PlumbBob::from_ros(&msg.distortion_model, &msg.d).map_err(|e| Rejection {
+        reason: Reject::UnsupportedDistortion,
+        detail: e.to_string(),
+    })?;
+    Ok(Camera {
         width: msg.width,
         height: msg.height,
         fx,
         fy,
         cx,
         cy,
-        distortion_model: msg.distortion_model.clone(),
-        distortion: msg.d.clone(),
+        distortion,
     })
 }
 
@@ -576,7 +571,7 @@ struct PendingFrame {
 #[derive(Debug)]
 struct CameraState {
     config: CameraConfig,
-    info: Option<Intrinsics>,
+    info: Option<Camera>,
     pending: VecDeque<PendingFrame>,
     depths: VecDeque<(i64, DepthImage)>,
     counters: CameraCounters,
@@ -850,12 +845,12 @@ impl Ingest {
                 Ok(world_from_camera) => {
                     camera.counters.synced += 1;
                     done.push(SyncedFrame {
-                        camera: camera.config.name.clone(),
+                        camera_name: camera.config.name.clone(),
                         stamp_nanos: frame.stamp,
                         frame_id: frame.frame_id,
                         rgb: frame.rgb,
                         depth,
-                        intrinsics: info.clone(),
+                        camera: *info,
                         world_from_camera,
                     });
                 }
@@ -1069,6 +1064,20 @@ mod tests {
         assert_eq!(
             validate_camera_info(&bad, 64).unwrap_err().reason,
             Reject::BadIntrinsics
+        );
+        let mut fisheye = info(4, 4);
+        fisheye.distortion_model = "equidistant".into();
+        fisheye.d = vec![0.1, 0.01, 0.0, 0.0];
+        assert_eq!(
+            validate_camera_info(&fisheye, 64).unwrap_err().reason,
+            Reject::UnsupportedDistortion
+        );
+        let mut plumb_bob = info(4, 4);
+        plumb_bob.distortion_model = "plumb_bob".into();
+        plumb_bob.d = vec![-0.2, 0.05, 0.0, 0.0, 0.0];
+        assert_eq!(
+            validate_camera_info(&plumb_bob, 64).unwrap().distortion.k1,
+            -0.2
         );
         let mut zero_f = info(4, 4);
         zero_f.k[4] = 0.0;

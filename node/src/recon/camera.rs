@@ -4,13 +4,15 @@
 use glam::{DMat3, DQuat, DVec2, DVec3};
 
 use super::Rigid;
-use crate::ingest::{Intrinsics, RgbImage};
+use crate::ingest::RgbImage;
 
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum CameraError {
     #[error("intrinsics must be finite with positive focal lengths and size, got {0}")]
     BadIntrinsics(String),
-    #[error("distortion model `{0}` is not supported (plumb_bob / rational_polynomial with 5+ zeros only)")]
+    #[error(
+        "distortion `{0}` is not supported (plumb_bob, or rational_polynomial with k4..k6 = 0)"
+    )]
     UnsupportedDistortion(String),
     #[error("pose encoding must be 9 finite values with fields of view in (0, pi), got {0:?}")]
     BadEncoding([f64; 9]),
@@ -29,6 +31,31 @@ pub struct PlumbBob {
 }
 
 impl PlumbBob {
+    /// From `CameraInfo.distortion_model` and `.d`: plumb_bob, or rational_polynomial whose extra
+    /// coefficients are zero; all-zero coefficients under any model mean no distortion.
+    pub fn from_ros(model: &str, d: &[f64]) -> Result<Self> {
+        if d.iter().all(|v| *v == 0.0) {
+            return Ok(Self::default());
+        }
+        match model {
+            "plumb_bob" | "rational_polynomial"
+                if d.len() >= 5 && d[5..].iter().all(|v| *v == 0.0) =>
+            {
+                Ok(Self {
+                    k1: d[0],
+                    k2: d[1],
+                    p1: d[2],
+                    p2: d[3],
+                    k3: d[4],
+                })
+            }
+            other => Err(CameraError::UnsupportedDistortion(format!(
+                "{other} with {} coefficients",
+                d.len()
+            ))),
+        }
+    }
+
     pub fn is_zero(&self) -> bool {
         [self.k1, self.k2, self.p1, self.p2, self.k3] == [0.0; 5]
     }
@@ -129,37 +156,6 @@ impl Camera {
         } else {
             Err(CameraError::BadIntrinsics(format!("{self:?}")))
         }
-    }
-
-    /// From validated `CameraInfo` intrinsics.
-    pub fn from_intrinsics(intrinsics: &Intrinsics) -> Result<Self> {
-        let d = &intrinsics.distortion;
-        let distortion = match intrinsics.distortion_model.as_str() {
-            _ if d.iter().all(|v| *v == 0.0) => PlumbBob::default(),
-            "plumb_bob" | "rational_polynomial"
-                if d.len() >= 5 && d[5..].iter().all(|v| *v == 0.0) =>
-            {
-                PlumbBob {
-                    k1: d[0],
-                    k2: d[1],
-                    p1: d[2],
-                    p2: d[3],
-                    k3: d[4],
-                }
-            }
-            other => return Err(CameraError::UnsupportedDistortion(other.to_owned())),
-        };
-        let camera = Self {
-            width: intrinsics.width,
-            height: intrinsics.height,
-            fx: intrinsics.fx,
-            fy: intrinsics.fy,
-            cx: intrinsics.cx,
-            cy: intrinsics.cy,
-            distortion,
-        };
-        camera.validate()?;
-        Ok(camera)
     }
 
     /// Project a point of the optical frame; `None` behind (or on) the image plane.
@@ -409,6 +405,26 @@ mod tests {
         // The sim's base-from-optical mounting quaternion equals body_from_optical.
         let [x, y, z, w] = groupforward_sim::testcard::BASE_FROM_OPTICAL;
         assert!(DQuat::from_xyzw(x, y, z, w).dot(q).abs() > 1.0 - 1e-12);
+    }
+
+    #[test]
+    fn ros_distortion_models() {
+        assert!(
+            PlumbBob::from_ros("plumb_bob", &[0.1, 0.0, 0.0, 0.0, 0.0])
+                .unwrap()
+                .k1
+                == 0.1
+        );
+        assert!(PlumbBob::from_ros("equidistant", &[0.0; 4])
+            .unwrap()
+            .is_zero());
+        assert!(PlumbBob::from_ros("equidistant", &[0.1, 0.0, 0.0, 0.0]).is_err());
+        assert!(PlumbBob::from_ros(
+            "rational_polynomial",
+            &[0.1, 0.0, 0.0, 0.0, 0.0, 0.2, 0.0, 0.0]
+        )
+        .is_err());
+        assert!(PlumbBob::from_ros("plumb_bob", &[0.1, 0.2]).is_err());
     }
 
     #[test]

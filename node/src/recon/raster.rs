@@ -81,6 +81,20 @@ pub struct Render {
     pub depth: Vec<f32>,
 }
 
+impl Render {
+    /// Nothing rendered: zero features, alpha and depth.
+    pub fn empty(width: usize, height: usize, channels: usize) -> Self {
+        Self {
+            width,
+            height,
+            channels,
+            features: vec![0.0; width * height * channels],
+            alpha: vec![0.0; width * height],
+            depth: vec![0.0; width * height],
+        }
+    }
+}
+
 /// A Gaussian in screen space.
 #[derive(Debug, Clone, Copy)]
 struct Splat {
@@ -268,14 +282,7 @@ pub fn render(
         })
         .collect();
 
-    let mut out = Render {
-        width,
-        height,
-        channels,
-        features: vec![0.0; width * height * channels],
-        alpha: vec![0.0; width * height],
-        depth: vec![0.0; width * height],
-    };
+    let mut out = Render::empty(width, height, channels);
     for tile_out in tiles {
         let b = &tile_out.bounds;
         let tw = b.x1 - b.x0;
@@ -456,14 +463,7 @@ pub mod reference {
             visible.push((p.z, i, mean, inverse));
         }
         visible.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-        let mut out = Render {
-            width,
-            height,
-            channels,
-            features: vec![0.0; width * height * channels],
-            alpha: vec![0.0; width * height],
-            depth: vec![0.0; width * height],
-        };
+        let mut out = Render::empty(width, height, channels);
         let mut acc = vec![0.0f64; channels];
         for y in 0..height {
             for x in 0..width {
