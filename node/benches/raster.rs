@@ -31,16 +31,16 @@ impl Lcg {
     }
 }
 
-/// Gaussians scattered through the frustum of a camera at the origin, sized like a reconstruction's
-/// (a few pixels each), with RGB features.
-fn random_scene(n: usize, seed: u64) -> (Gaussians, Vec<f32>) {
+/// Gaussians scattered through the frustum of a camera at the origin (depth 1–8 m), sized like a
+/// pixel-aligned reconstruction's: a standard deviation of 0.5–1.5 pixels in `camera`.
+fn random_scene(n: usize, seed: u64, camera: &Camera) -> (Gaussians, Vec<f32>) {
     let mut rng = Lcg(seed);
     let mut g = Gaussians::with_dims(0, 0);
     let mut rgb = Vec::with_capacity(n * 3);
     for _ in 0..n {
         let z = rng.range(1.0, 8.0);
         let mean = Vec3::new(rng.range(-0.6, 0.6) * z, rng.range(-0.45, 0.45) * z, z);
-        let s = rng.range(0.003, 0.02);
+        let s = z * rng.range(0.5, 1.5) / camera.fx as f32;
         let scale = Vec3::new(s, s * rng.range(0.3, 1.0), s * 0.2);
         let rotation = Quat::from_xyzw(
             rng.range(-1.0, 1.0),
@@ -108,8 +108,8 @@ fn pixel_aligned_views(width: usize, height: usize) -> (Gaussians, Vec<f32>, Vec
 fn raster(c: &mut Criterion) {
     let settings = RasterSettings::default();
 
-    let (g, rgb) = random_scene(100_000, 1);
     let camera = Camera::from_fov(640, 480, 1.2).unwrap();
+    let (g, rgb) = random_scene(100_000, 1, &camera);
     let mut group = c.benchmark_group("raster");
     group.sample_size(20);
     group.measurement_time(Duration::from_secs(10));
@@ -137,8 +137,8 @@ fn raster(c: &mut Criterion) {
     });
 
     // Same small scene through both paths: the ratio of these two is the speed-up.
-    let (small, small_rgb) = random_scene(2_000, 2);
     let small_camera = Camera::from_fov(128, 96, 1.2).unwrap();
+    let (small, small_rgb) = random_scene(2_000, 2, &small_camera);
     group.throughput(Throughput::Elements(1));
     group.bench_function("2k_gaussians_128x96_tile", |b| {
         b.iter(|| {

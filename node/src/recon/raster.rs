@@ -22,6 +22,8 @@ pub const DEFAULT_LOW_PASS: f64 = 0.3;
 pub const ALPHA_MIN: f32 = 1.0 / 255.0;
 pub const ALPHA_MAX: f32 = 0.99;
 pub const TRANSMITTANCE_MIN: f32 = 1e-4;
+/// Pixels of slack around the exact footprint, far above f32 rounding of pixel coordinates.
+const FOOTPRINT_MARGIN: f64 = 1e-2;
 /// 3DGS clamps the projection Jacobian for centres this far outside the field of view, so that
 /// off-screen Gaussians do not blow up their screen-space covariance.
 const JACOBIAN_FOV_LIMIT: f64 = 1.3;
@@ -102,6 +104,8 @@ struct Splat {
     /// Inverse 2D covariance (a, b, c): power = -½(a dx² + c dy²) - b dx dy.
     conic: [f32; 3],
     opacity: f32,
+    /// Squared Mahalanobis radius of the footprint (alpha ≥ ALPHA_MIN inside).
+    radius2: f32,
     depth: f64,
     /// Inclusive pixel bounds of the footprint, clipped to the image.
     x0: usize,
@@ -163,6 +167,7 @@ fn project(
     i: usize,
     camera: &Camera,
     camera_from_world: &Rigid,
+    world_from_camera_rotation: &DMat3,
     settings: &RasterSettings,
 ) -> Option<Splat> {
     let opacity = g.opacities[i];
@@ -178,16 +183,17 @@ fn project(
     let lim_y = JACOBIAN_FOV_LIMIT * camera.cy.max(h - camera.cy) / camera.fy;
     let tx = (p.x / p.z).clamp(-lim_x, lim_x);
     let ty = (p.y / p.z).clamp(-lim_y, lim_y);
-    // Rows of J W: the projection Jacobian applied to the camera rotation.
-    let rot = camera_from_world.rotation_matrix();
+    // Rows of J W (the projection Jacobian applied to the camera rotation), taken into the
+    // Gaussian's local frame and scaled: with M = J W R S, Σ' = M Mᵀ.
     let j0 = DVec3::new(camera.fx / p.z, 0.0, -camera.fx * tx / p.z);
     let j1 = DVec3::new(0.0, camera.fy / p.z, -camera.fy * ty / p.z);
-    let t0 = rot.transpose() * j0;
-    let t1 = rot.transpose() * j1;
-    let sigma = world_covariance(g, i);
-    let a = t0.dot(sigma * t0) + settings.low_pass;
-    let b = t0.dot(sigma * t1);
-    let c = t1.dot(sigma * t1) + settings.low_pass;
+    let local_from_world = safe_rotation(g.rotations[i]).as_dquat().inverse();
+    let scale = g.scales[i].abs().as_dvec3();
+    let m0 = (local_from_world * (*world_from_camera_rotation * j0)) * scale;
+    let m1 = (local_from_world * (*world_from_camera_rotation * j1)) * scale;
+    let a = m0.dot(m0) + settings.low_pass;
+    let b = m0.dot(m1);
+    let c = m1.dot(m1) + settings.low_pass;
     let det = a * c - b * b;
     if !(det > 0.0 && det.is_finite()) {
         return None;
@@ -195,10 +201,10 @@ fn project(
     let mean_x = camera.fx * p.x / p.z + camera.cx;
     let mean_y = camera.fy * p.y / p.z + camera.cy;
     // Mahalanobis radius where opacity · exp(-r²/2) = ALPHA_MIN; the ellipse's bounding box has
-    // half-widths r·√Σ'xx and r·√Σ'yy. One pixel of margin absorbs rounding.
+    // half-widths r·√Σ'xx and r·√Σ'yy; a small margin absorbs rounding.
     let r2 = 2.0 * (f64::from(opacity) / f64::from(ALPHA_MIN)).ln().max(0.0);
-    let half_x = (r2 * a).sqrt() + 1.0;
-    let half_y = (r2 * c).sqrt() + 1.0;
+    let half_x = (r2 * a).sqrt() + FOOTPRINT_MARGIN;
+    let half_y = (r2 * c).sqrt() + FOOTPRINT_MARGIN;
     if mean_x + half_x < 0.0
         || mean_y + half_y < 0.0
         || mean_x - half_x > w - 1.0
@@ -214,6 +220,7 @@ fn project(
         mean: [mean_x as f32, mean_y as f32],
         conic: [(c / det) as f32, (-b / det) as f32, (a / det) as f32],
         opacity,
+        radius2: r2 as f32,
         depth: p.z,
         x0: clip((mean_x - half_x).ceil(), w - 1.0),
         x1: clip((mean_x + half_x).floor(), w - 1.0),
@@ -234,75 +241,107 @@ pub fn render(
     settings: &RasterSettings,
 ) -> Result<Render> {
     check_inputs(g, features, channels, camera, camera_from_world, settings)?;
+    if channels == 0 {
+        // Output bands are split by channel count; render one zero channel for alpha and depth.
+        let zeros = vec![0.0; g.len()];
+        let rendered = render(g, &zeros, 1, camera, camera_from_world, settings)?;
+        return Ok(Render {
+            channels: 0,
+            features: Vec::new(),
+            ..rendered
+        });
+    }
     let (width, height) = (camera.width as usize, camera.height as usize);
     let tile = settings.tile_size;
     let (tiles_x, tiles_y) = (width.div_ceil(tile), height.div_ceil(tile));
 
+    let world_from_camera_rotation = camera_from_world.rotation_matrix().transpose();
     let splats: Vec<Option<Splat>> = (0..g.len())
         .into_par_iter()
-        .map(|i| project(g, i, camera, camera_from_world, settings))
+        .map(|i| {
+            project(
+                g,
+                i,
+                camera,
+                camera_from_world,
+                &world_from_camera_rotation,
+                settings,
+            )
+        })
         .collect();
-    // (tile, depth, index) for every tile a footprint touches; sorting gives each tile its
-    // Gaussians front to back, ties broken by index so the order never depends on threads.
-    let mut keys: Vec<(u32, f64, u32)> = Vec::new();
-    for (i, splat) in splats.iter().enumerate() {
-        let Some(s) = splat else { continue };
-        for ty in s.y0 / tile..=s.y1 / tile {
-            for tx in s.x0 / tile..=s.x1 / tile {
-                keys.push(((ty * tiles_x + tx) as u32, s.depth, i as u32));
-            }
-        }
-    }
-    keys.par_sort_unstable_by(|a, b| a.0.cmp(&b.0).then(a.1.total_cmp(&b.1)).then(a.2.cmp(&b.2)));
+    // One key per (tile, Gaussian) overlap: tile, depth and index packed into a u128 so that sorting
+    // integers gives each tile its Gaussians front to back, ties broken by index (positive f64
+    // depths order like their bit patterns). The order never depends on threads.
+    let mut keys: Vec<u128> = splats
+        .par_iter()
+        .enumerate()
+        .flat_map_iter(|(i, splat)| {
+            let (tile_rows, tile_cols) = match splat {
+                Some(s) => (s.y0 / tile..s.y1 / tile + 1, s.x0 / tile..s.x1 / tile + 1),
+                None => (0..0, 0..0),
+            };
+            let depth_bits = splat.as_ref().map_or(0, |s| s.depth.to_bits());
+            tile_rows.flat_map(move |ty| {
+                tile_cols.clone().map(move |tx| {
+                    (((ty * tiles_x + tx) as u128) << 96)
+                        | (u128::from(depth_bits) << 32)
+                        | i as u128
+                })
+            })
+        })
+        .collect();
+    keys.par_sort_unstable();
+    let tile_of = |key: u128| (key >> 96) as usize;
     let mut ranges = vec![(0usize, 0usize); tiles_x * tiles_y];
     let mut start = 0;
     while start < keys.len() {
-        let t = keys[start].0;
+        let t = tile_of(keys[start]);
         let mut end = start;
-        while end < keys.len() && keys[end].0 == t {
+        while end < keys.len() && tile_of(keys[end]) == t {
             end += 1;
         }
-        ranges[t as usize] = (start, end);
+        ranges[t] = (start, end);
         start = end;
     }
 
-    let tiles: Vec<TileOutput> = (0..tiles_x * tiles_y)
-        .into_par_iter()
-        .map(|t| {
-            let (tx, ty) = (t % tiles_x, t / tiles_x);
-            let bounds = TileBounds {
-                x0: tx * tile,
-                y0: ty * tile,
-                x1: ((tx + 1) * tile).min(width),
-                y1: ((ty + 1) * tile).min(height),
-            };
-            let (a, b) = ranges[t];
-            let order = keys[a..b].iter().map(|k| k.2 as usize);
-            composite_tile(&bounds, order, &splats, features, channels)
-        })
-        .collect();
-
     let mut out = Render::empty(width, height, channels);
-    for tile_out in tiles {
-        let b = &tile_out.bounds;
-        let tw = b.x1 - b.x0;
-        for y in b.y0..b.y1 {
-            for x in b.x0..b.x1 {
-                let local = (y - b.y0) * tw + (x - b.x0);
-                let pixel = y * width + x;
-                let transmittance = tile_out.transmittance[local];
-                let alpha = 1.0 - transmittance;
-                out.alpha[pixel] = alpha;
-                out.depth[pixel] = if alpha > 0.0 {
-                    tile_out.depth[local] / alpha
-                } else {
-                    0.0
+    // Tile rows own disjoint bands of the output, so each is composited and written in parallel.
+    let band = tile * width;
+    out.features
+        .par_chunks_mut(band * channels)
+        .zip(out.alpha.par_chunks_mut(band))
+        .zip(out.depth.par_chunks_mut(band))
+        .enumerate()
+        .for_each(|(ty, ((features_band, alpha_band), depth_band))| {
+            for tx in 0..tiles_x {
+                let bounds = TileBounds {
+                    x0: tx * tile,
+                    y0: ty * tile,
+                    x1: ((tx + 1) * tile).min(width),
+                    y1: ((ty + 1) * tile).min(height),
                 };
-                out.features[pixel * channels..(pixel + 1) * channels]
-                    .copy_from_slice(&tile_out.features[local * channels..(local + 1) * channels]);
+                let (a, b) = ranges[ty * tiles_x + tx];
+                let order = keys[a..b].iter().map(|k| (*k & 0xffff_ffff) as usize);
+                let tile_out = composite_tile(&bounds, order, &splats, features, channels);
+                let tw = bounds.x1 - bounds.x0;
+                for y in bounds.y0..bounds.y1 {
+                    for x in bounds.x0..bounds.x1 {
+                        let local = (y - bounds.y0) * tw + (x - bounds.x0);
+                        let pixel = (y - ty * tile) * width + x;
+                        let alpha = 1.0 - tile_out.transmittance[local];
+                        alpha_band[pixel] = alpha;
+                        depth_band[pixel] = if alpha > 0.0 {
+                            tile_out.depth[local] / alpha
+                        } else {
+                            0.0
+                        };
+                        features_band[pixel * channels..(pixel + 1) * channels].copy_from_slice(
+                            &tile_out.features[local * channels..(local + 1) * channels],
+                        );
+                    }
+                }
             }
-        }
-    }
+        });
     Ok(out)
 }
 
@@ -316,7 +355,6 @@ struct TileBounds {
 
 #[derive(Debug)]
 struct TileOutput {
-    bounds: TileBounds,
     transmittance: Vec<f32>,
     depth: Vec<f32>,
     features: Vec<f32>,
@@ -349,17 +387,19 @@ fn composite_tile(
         if x0 > x1 || y0 > y1 {
             continue;
         }
+        let [a, bb, c] = s.conic;
+        // Outside the footprint ellipse alpha < ALPHA_MIN: test the quadratic before the exp.
+        let power_min = -0.5 * s.radius2;
         for y in y0..=y1 {
             let dy = y as f32 - s.mean[1];
+            let c_dy2 = c * dy * dy;
+            let b_dy = bb * dy;
+            let row = (y - b.y0) * tw;
             for x in x0..=x1 {
-                let local = (y - b.y0) * tw + (x - b.x0);
-                if done[local] {
-                    continue;
-                }
+                let local = row + (x - b.x0);
                 let dx = x as f32 - s.mean[0];
-                let power =
-                    -0.5 * (s.conic[0] * dx * dx + s.conic[2] * dy * dy) - s.conic[1] * dx * dy;
-                if power > 0.0 {
+                let power = -0.5 * (a * dx * dx + c_dy2) - b_dy * dx;
+                if power > 0.0 || power < power_min || done[local] {
                     continue;
                 }
                 let alpha = (s.opacity * power.exp()).min(ALPHA_MAX);
@@ -374,11 +414,11 @@ fn composite_tile(
                     continue;
                 }
                 let weight = alpha * t;
-                for (a, f) in acc[local * channels..(local + 1) * channels]
+                for (acc_c, f) in acc[local * channels..(local + 1) * channels]
                     .iter_mut()
                     .zip(feature)
                 {
-                    *a += f * weight;
+                    *acc_c += f * weight;
                 }
                 depth[local] += s.depth as f32 * weight;
                 transmittance[local] = next;
@@ -386,12 +426,6 @@ fn composite_tile(
         }
     }
     TileOutput {
-        bounds: TileBounds {
-            x0: b.x0,
-            y0: b.y0,
-            x1: b.x1,
-            y1: b.y1,
-        },
         transmittance,
         depth,
         features: acc,
@@ -731,6 +765,24 @@ mod tests {
             single(centre, 0.9, Vec3::splat(-0.1), Quat::IDENTITY),
             single(centre, 0.9, Vec3::splat(0.1), Quat::IDENTITY)
         );
+    }
+
+    #[test]
+    fn near_singular_projected_covariances_stay_invertible() {
+        // A needle across the view projects to a line, one along the view to a point: without the
+        // low-pass both 2D covariances are singular.
+        let centre = Vec3::new(0.0, 0.0, 2.0);
+        let across = single(centre, 0.9, Vec3::new(0.5, 1e-9, 1e-9), Quat::IDENTITY);
+        let along = single(centre, 0.9, Vec3::new(1e-9, 1e-9, 0.5), Quat::IDENTITY);
+        assert!(covered(&across) > covered(&along));
+        let row = 17 * 48;
+        // 14 px from the centre is ~1.4σ of the needle's 10 px: alpha 0.9·e^(-1) ≈ 0.33.
+        assert!(
+            across.alpha[row + 10] > 0.25 && across.alpha[row + 38] > 0.25,
+            "the line spans the view"
+        );
+        assert!(across.alpha[row - 48 * 5 + 24] < 0.05, "and is thin");
+        assert!(covered(&along) < 30, "a point-like footprint");
     }
 
     #[test]
