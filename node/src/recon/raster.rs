@@ -100,6 +100,8 @@ impl Render {
 /// A Gaussian in screen space.
 #[derive(Debug, Clone, Copy)]
 struct Splat {
+    /// Index of the Gaussian (and of its features).
+    index: usize,
     mean: [f32; 2],
     /// Inverse 2D covariance (a, b, c): power = -½(a dx² + c dy²) - b dx dy.
     conic: [f32; 3],
@@ -217,6 +219,7 @@ fn project(
     }
     let clip = |v: f64, max: f64| v.clamp(0.0, max) as usize;
     Some(Splat {
+        index: i,
         mean: [mean_x as f32, mean_y as f32],
         conic: [(c / det) as f32, (-b / det) as f32, (a / det) as f32],
         opacity,
@@ -256,9 +259,10 @@ pub fn render(
     let (tiles_x, tiles_y) = (width.div_ceil(tile), height.div_ceil(tile));
 
     let world_from_camera_rotation = camera_from_world.rotation_matrix().transpose();
-    let splats: Vec<Option<Splat>> = (0..g.len())
+    // Visible Gaussians only, in index order, so the composite loop walks dense memory.
+    let splats: Vec<Splat> = (0..g.len())
         .into_par_iter()
-        .map(|i| {
+        .filter_map(|i| {
             project(
                 g,
                 i,
@@ -269,18 +273,17 @@ pub fn render(
             )
         })
         .collect();
-    // One key per (tile, Gaussian) overlap: tile, depth and index packed into a u128 so that sorting
-    // integers gives each tile its Gaussians front to back, ties broken by index (positive f64
-    // depths order like their bit patterns). The order never depends on threads.
+    // One key per (tile, Gaussian) overlap: tile, depth and splat position packed into a u128 so
+    // that sorting integers gives each tile its Gaussians front to back, ties broken by index
+    // (positive f64 depths order like their bit patterns; positions follow index order). The order
+    // never depends on threads.
     let mut keys: Vec<u128> = splats
         .par_iter()
         .enumerate()
-        .flat_map_iter(|(i, splat)| {
-            let (tile_rows, tile_cols) = match splat {
-                Some(s) => (s.y0 / tile..s.y1 / tile + 1, s.x0 / tile..s.x1 / tile + 1),
-                None => (0..0, 0..0),
-            };
-            let depth_bits = splat.as_ref().map_or(0, |s| s.depth.to_bits());
+        .flat_map_iter(|(i, s)| {
+            let tile_rows = s.y0 / tile..s.y1 / tile + 1;
+            let tile_cols = s.x0 / tile..s.x1 / tile + 1;
+            let depth_bits = s.depth.to_bits();
             tile_rows.flat_map(move |ty| {
                 tile_cols.clone().map(move |tx| {
                     (((ty * tiles_x + tx) as u128) << 96)
@@ -365,7 +368,7 @@ struct TileOutput {
 fn composite_tile(
     b: &TileBounds,
     order: impl Iterator<Item = usize>,
-    splats: &[Option<Splat>],
+    splats: &[Splat],
     features: &[f32],
     channels: usize,
 ) -> TileOutput {
@@ -380,8 +383,8 @@ fn composite_tile(
         if remaining == 0 {
             break;
         }
-        let Some(s) = &splats[i] else { continue };
-        let feature = &features[i * channels..(i + 1) * channels];
+        let s = &splats[i];
+        let feature = &features[s.index * channels..(s.index + 1) * channels];
         let (x0, x1) = (s.x0.max(b.x0), s.x1.min(b.x1 - 1));
         let (y0, y1) = (s.y0.max(b.y0), s.y1.min(b.y1 - 1));
         if x0 > x1 || y0 > y1 {
