@@ -30,7 +30,7 @@ build:
 	$(CARGO) build --workspace --all-targets
 
 # --all-targets also runs each benchmark once, as a smoke test.
-test-rust: build
+test-rust: setup build
 	$(CARGO) test --workspace --all-targets
 
 test-python: setup build

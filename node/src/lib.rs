@@ -4,6 +4,7 @@
 //! - [`ingest`]: decode, validate and sync camera, depth, camera-info and TF messages by stamp;
 //! - [`node`]: the loop that feeds the stages from a bounded queue and reports status;
 //! - [`recon`]: cameras, Gaussians, the tile rasterizer, gauge alignment and metrics;
+//! - [`model`]: ONNX models through `ort` (runtime discovery, manifests, runners);
 //! - [`transport`]: rmw_zenoh-compatible zenoh transport (and an in-memory one for tests);
 //! - [`replay`]: publish a rosbag2 MCAP bag as a live robot would;
 //! - [`demo`]: everything in one process over an embedded zenoh peer.
@@ -13,6 +14,7 @@
 pub mod config;
 pub mod demo;
 pub mod ingest;
+pub mod model;
 pub mod node;
 pub mod recon;
 pub mod replay;

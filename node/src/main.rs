@@ -75,6 +75,14 @@ enum Command {
         #[arg(long, default_value_t = 0.5)]
         delay_secs: f64,
     },
+    /// Check an ONNX model against its manifest (names, shapes, types) and print its contract.
+    ModelCheck {
+        /// The model's manifest, `models/<name>.toml`.
+        manifest: PathBuf,
+        /// ONNX Runtime library to load (default: `ORT_DYLIB_PATH`, then the project's `.venv`).
+        #[arg(long)]
+        onnxruntime: Option<PathBuf>,
+    },
     /// End-to-end demo in one process: simulated camera → node → status and services.
     Demo {
         /// Frames the simulated camera publishes.
@@ -142,6 +150,26 @@ fn main() -> Result<()> {
             for (topic, (count, reason)) in &summary.skipped {
                 eprintln!("skipped {count} messages on {topic}: {reason}");
             }
+        }
+        Command::ModelCheck {
+            manifest,
+            onnxruntime,
+        } => {
+            let library = groupforward::model::init_runtime(onnxruntime.as_deref())?;
+            let loaded = groupforward::model::manifest::Manifest::load(&manifest)?;
+            let session = groupforward::model::open_session(
+                &loaded.model_path(),
+                &groupforward::model::SessionOptions::default(),
+            )?;
+            loaded.check(&session)?;
+            println!(
+                "{}: {} matches its manifest ({:?}{}; ONNX Runtime {})",
+                manifest.display(),
+                loaded.model_path().display(),
+                loaded.kind,
+                if loaded.fixture { ", test fixture" } else { "" },
+                library.display()
+            );
         }
         Command::Demo { frames } => {
             let options = groupforward::demo::DemoOptions {

@@ -1,0 +1,247 @@
+//! Model runtime (DESIGN §4): ONNX models through `ort` with a dynamically loaded ONNX Runtime.
+//!
+//! The ONNX Runtime shared library comes from the PyPI `onnxruntime` wheel (nothing is downloaded by
+//! the build). It is found by, in order: the config key, `ORT_DYLIB_PATH`, the project-local venv that
+//! `make setup` installs. Each model has a manifest (`models/<name>.toml`) that the loaded graph is
+//! checked against, so a wrong export is a clear error instead of garbage output.
+
+pub mod manifest;
+pub mod reconstruction;
+
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
+
+/// The ONNX Runtime version the project pins (PyPI `onnxruntime`), matching `ort` 2.0.0-rc.15.
+pub const ONNXRUNTIME_VERSION: &str = "1.31.1";
+/// How to install the library the node looks for.
+pub const INSTALL_HINT: &str =
+    "run `make setup` (installs PyPI onnxruntime==1.31.1 into .venv), or set `ORT_DYLIB_PATH` / the config's `onnxruntime` path to libonnxruntime.so";
+
+#[derive(Debug, thiserror::Error)]
+pub enum ModelError {
+    #[error("ONNX Runtime library not found (looked in: {searched}); {INSTALL_HINT}")]
+    LibraryNotFound { searched: String },
+    #[error("cannot load ONNX Runtime from {path}: {reason}; {INSTALL_HINT}")]
+    LibraryLoad { path: PathBuf, reason: String },
+    #[error("model file {0} not found")]
+    ModelNotFound(PathBuf),
+    #[error("cannot read manifest {path}: {reason}")]
+    Manifest { path: PathBuf, reason: String },
+    #[error("model {model} does not match its manifest:\n  {}", .problems.join("\n  "))]
+    ContractMismatch {
+        model: String,
+        problems: Vec<String>,
+    },
+    #[error("execution provider `{0}` is not available in this ONNX Runtime build")]
+    ProviderUnavailable(String),
+    #[error("unknown execution provider `{0}` (cpu, cuda, tensorrt)")]
+    UnknownProvider(String),
+    #[error("input: {0}")]
+    Input(String),
+    #[error("onnxruntime: {0}")]
+    Ort(String),
+}
+
+pub type Result<T> = std::result::Result<T, ModelError>;
+
+impl From<ort::Error> for ModelError {
+    fn from(e: ort::Error) -> Self {
+        Self::Ort(e.to_string())
+    }
+}
+
+/// Where the project-local setup puts the library: `.venv/lib/python3.*/site-packages/onnxruntime/capi/`.
+fn project_local_candidates(root: &Path) -> Vec<PathBuf> {
+    let lib = root.join(".venv").join("lib");
+    let Ok(entries) = std::fs::read_dir(&lib) else {
+        return Vec::new();
+    };
+    let mut found = Vec::new();
+    for entry in entries.flatten() {
+        let capi = entry.path().join("site-packages/onnxruntime/capi");
+        let Ok(files) = std::fs::read_dir(&capi) else {
+            continue;
+        };
+        let mut libs: Vec<PathBuf> = files
+            .flatten()
+            .map(|f| f.path())
+            .filter(|p| {
+                p.file_name()
+                    .and_then(|n| n.to_str())
+                    .is_some_and(|n| n.starts_with("libonnxruntime.so") && !n.contains("providers"))
+            })
+            .collect();
+        libs.sort();
+        found.extend(libs);
+    }
+    found
+}
+
+/// The library to load: `configured` if given, else `ORT_DYLIB_PATH` if set, else the project-local
+/// venv (searched from the working directory, then from the source tree this binary was built from).
+/// An explicit path that does not exist is an error, never a silent fall-back to another library.
+pub fn find_library(configured: Option<&Path>) -> Result<PathBuf> {
+    let explicit = configured.map(Path::to_owned).or_else(|| {
+        std::env::var_os("ORT_DYLIB_PATH")
+            .filter(|p| !p.is_empty())
+            .map(PathBuf::from)
+    });
+    if let Some(path) = explicit {
+        return if path.is_file() {
+            Ok(path)
+        } else {
+            Err(ModelError::LibraryNotFound {
+                searched: path.display().to_string(),
+            })
+        };
+    }
+    let roots = [
+        std::env::current_dir().ok(),
+        Path::new(env!("CARGO_MANIFEST_DIR"))
+            .parent()
+            .map(Path::to_owned),
+    ];
+    let mut searched = Vec::new();
+    for root in roots.into_iter().flatten() {
+        if let Some(found) = project_local_candidates(&root)
+            .into_iter()
+            .find(|p| p.is_file())
+        {
+            return Ok(found);
+        }
+        searched.push(root.join(".venv").display().to_string());
+    }
+    Err(ModelError::LibraryNotFound {
+        searched: searched.join(", "),
+    })
+}
+
+static ENVIRONMENT: OnceLock<
+    std::result::Result<(PathBuf, ort::environment::Environment), String>,
+> = OnceLock::new();
+
+/// Load ONNX Runtime and create its environment, once per process (later calls return the first
+/// outcome). Errors are values: a missing, wrong or too-old library never panics.
+pub fn init_runtime(configured: Option<&Path>) -> Result<PathBuf> {
+    runtime(configured).map(|(path, _)| path.clone())
+}
+
+fn runtime(configured: Option<&Path>) -> Result<&'static (PathBuf, ort::environment::Environment)> {
+    let outcome = ENVIRONMENT.get_or_init(|| {
+        let path = find_library(configured).map_err(|e| e.to_string())?;
+        let load_error = |reason: String| {
+            ModelError::LibraryLoad {
+                path: path.clone(),
+                reason,
+            }
+            .to_string()
+        };
+        let builder = ort::init_from(&path).map_err(|e| load_error(e.to_string()))?;
+        let environment = builder
+            .with_name("groupforward")
+            .build()
+            .map_err(|e| load_error(e.to_string()))?;
+        Ok((path, environment))
+    });
+    outcome.as_ref().map_err(|reason| ModelError::LibraryLoad {
+        path: configured.map(Path::to_owned).unwrap_or_default(),
+        reason: reason.clone(),
+    })
+}
+
+/// Execution provider by name; `cpu` always works, others must be present in the loaded library.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum Provider {
+    #[default]
+    Cpu,
+    Cuda,
+    Tensorrt,
+}
+
+impl std::str::FromStr for Provider {
+    type Err = ModelError;
+
+    fn from_str(name: &str) -> Result<Self> {
+        match name.to_ascii_lowercase().as_str() {
+            "cpu" => Ok(Self::Cpu),
+            "cuda" => Ok(Self::Cuda),
+            "tensorrt" | "trt" => Ok(Self::Tensorrt),
+            other => Err(ModelError::UnknownProvider(other.to_owned())),
+        }
+    }
+}
+
+/// Session options every runner shares.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SessionOptions {
+    pub provider: Provider,
+    pub intra_threads: usize,
+}
+
+impl Default for SessionOptions {
+    fn default() -> Self {
+        Self {
+            provider: Provider::Cpu,
+            intra_threads: 2,
+        }
+    }
+}
+
+/// Open an ONNX session with `options`; a requested GPU provider that cannot register is an error,
+/// not a silent fall-back to the CPU.
+pub fn open_session(path: &Path, options: &SessionOptions) -> Result<ort::session::Session> {
+    if !path.is_file() {
+        return Err(ModelError::ModelNotFound(path.to_owned()));
+    }
+    let (_, environment) = runtime(None)?;
+    let mut builder = ort::session::Session::builder(environment)?
+        .with_intra_threads(options.intra_threads.max(1))
+        .map_err(|e| ModelError::Ort(e.to_string()))?;
+    let provider = match options.provider {
+        Provider::Cpu => None,
+        #[cfg(feature = "cuda")]
+        Provider::Cuda => Some(ort::ep::CUDA::default().build().error_on_failure()),
+        #[cfg(feature = "tensorrt")]
+        Provider::Tensorrt => Some(ort::ep::TensorRT::default().build().error_on_failure()),
+        #[allow(unreachable_patterns)] // reachable when a GPU feature is off
+        other => {
+            return Err(ModelError::ProviderUnavailable(format!(
+                "{} (this binary was built without the `{}` cargo feature)",
+                format!("{other:?}").to_lowercase(),
+                format!("{other:?}").to_lowercase()
+            )))
+        }
+    };
+    if let Some(provider) = provider {
+        builder = builder.with_execution_providers([provider]).map_err(|_| {
+            ModelError::ProviderUnavailable(format!("{:?}", options.provider).to_lowercase())
+        })?;
+    }
+    Ok(builder.commit_from_file(path)?)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_configured_path_that_does_not_exist_is_reported_with_the_install_hint() {
+        let missing = Path::new("/nonexistent/libonnxruntime.so.1.31.1");
+        let err = find_library(Some(missing)).unwrap_err().to_string();
+        assert!(
+            err.contains("/nonexistent/libonnxruntime.so.1.31.1") && err.contains("make setup"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn provider_names() {
+        assert_eq!("CUDA".parse::<Provider>().unwrap(), Provider::Cuda);
+        assert_eq!("trt".parse::<Provider>().unwrap(), Provider::Tensorrt);
+        assert!(matches!(
+            "npu".parse::<Provider>(),
+            Err(ModelError::UnknownProvider(_))
+        ));
+    }
+}

@@ -1,0 +1,374 @@
+//! The reconstruction model runner (GroupForward role, DESIGN §4): V views in, per-pixel depth,
+//! Gaussian attributes and instance embeddings out, lifted to world-space Gaussians.
+//!
+//! Contract: `images` f32 [1,V,3,H,W] in [0,1] (normalised as the manifest says); in RGB-D mode also
+//! `points` f32 [1,V,3,H,W], world XYZ from sensor depth, centred on the window's mean camera centre
+//! and divided by `points_scale`. Outputs `depth` [1,V,H,W] (metres), `gaussians` [1,V,11,H,W]
+//! = opacity (1), scale (3, pixels at unit depth), rotation (4, xyzw in the camera frame), colour
+//! residual (3, added to the input colour), `embeddings` [1,V,d_e,H,W]; optionally `pose_enc` [1,V,9].
+
+use std::path::Path;
+
+use glam::{DVec2, DVec3};
+
+use super::manifest::{InputMode, Manifest, ModelKind};
+use super::{open_session, ModelError, Result, SessionOptions};
+use crate::ingest::{DepthImage, RgbImage};
+use crate::recon::camera::Camera;
+use crate::recon::gaussians::{lift, Gaussians, PixelAligned};
+use crate::recon::Rigid;
+
+/// Channels of the `gaussians` output.
+pub const GAUSSIAN_CHANNELS: usize = 11;
+
+/// One input view: colour, optional registered depth, camera and pose.
+#[derive(Debug, Clone, Copy)]
+pub struct View<'a> {
+    pub rgb: &'a RgbImage,
+    pub depth: Option<&'a DepthImage>,
+    pub camera: Camera,
+    pub world_from_camera: Rigid,
+}
+
+/// Input tensors at the model resolution: `images` (and `points` in RGB-D mode), [1,V,3,H,W].
+#[derive(Debug, Clone, PartialEq)]
+pub struct ModelInputs {
+    pub views: usize,
+    pub height: usize,
+    pub width: usize,
+    pub images: Vec<f32>,
+    pub points: Option<Vec<f32>>,
+}
+
+/// The model's raw outputs for V views at the model resolution.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Prediction {
+    pub views: usize,
+    pub height: usize,
+    pub width: usize,
+    pub embedding_dim: usize,
+    pub depth: Vec<f32>,
+    pub gaussians: Vec<f32>,
+    pub embeddings: Vec<f32>,
+    pub pose_enc: Option<Vec<f32>>,
+}
+
+/// A loaded reconstruction model.
+pub struct ReconstructionModel {
+    session: ort::session::Session,
+    pub manifest: Manifest,
+}
+
+impl std::fmt::Debug for ReconstructionModel {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "ReconstructionModel({})", self.manifest.name)
+    }
+}
+
+/// Bilinear resize of an RGB image to `width × height`, as f32 in [0, 1], channel-planar.
+pub fn resize_rgb_planar(image: &RgbImage, width: usize, height: usize) -> Vec<f32> {
+    let (w, h) = (image.width as usize, image.height as usize);
+    let mut out = vec![0.0; 3 * width * height];
+    let sx = w as f32 / width as f32;
+    let sy = h as f32 / height as f32;
+    for y in 0..height {
+        // Pixel centres map onto pixel centres (align_corners = false).
+        let fy = ((y as f32 + 0.5) * sy - 0.5).clamp(0.0, (h - 1) as f32);
+        let (y0, wy) = (fy.floor() as usize, fy - fy.floor());
+        let y1 = (y0 + 1).min(h - 1);
+        for x in 0..width {
+            let fx = ((x as f32 + 0.5) * sx - 0.5).clamp(0.0, (w - 1) as f32);
+            let (x0, wx) = (fx.floor() as usize, fx - fx.floor());
+            let x1 = (x0 + 1).min(w - 1);
+            for c in 0..3 {
+                let at = |xx: usize, yy: usize| f32::from(image.data[(yy * w + xx) * 3 + c]);
+                let top = at(x0, y0) * (1.0 - wx) + at(x1, y0) * wx;
+                let bottom = at(x0, y1) * (1.0 - wx) + at(x1, y1) * wx;
+                out[c * width * height + y * width + x] = (top * (1.0 - wy) + bottom * wy) / 255.0;
+            }
+        }
+    }
+    out
+}
+
+/// The camera after resizing its image to `width × height` (pinhole scaling, centres kept).
+pub fn resized_camera(camera: &Camera, width: usize, height: usize) -> Camera {
+    let sx = width as f64 / f64::from(camera.width);
+    let sy = height as f64 / f64::from(camera.height);
+    Camera {
+        width: width as u32,
+        height: height as u32,
+        fx: camera.fx * sx,
+        fy: camera.fy * sy,
+        cx: (camera.cx + 0.5) * sx - 0.5,
+        cy: (camera.cy + 0.5) * sy - 0.5,
+        distortion: camera.distortion,
+    }
+}
+
+/// Nearest-neighbour resize of depth (depth must not be blended across edges).
+fn resize_depth(depth: &DepthImage, width: usize, height: usize) -> Vec<f32> {
+    let (w, h) = (depth.width as usize, depth.height as usize);
+    let mut out = Vec::with_capacity(width * height);
+    for y in 0..height {
+        let sy = (((y as f32 + 0.5) * h as f32 / height as f32) as usize).min(h - 1);
+        for x in 0..width {
+            let sx = (((x as f32 + 0.5) * w as f32 / width as f32) as usize).min(w - 1);
+            out.push(depth.metres[sy * w + sx]);
+        }
+    }
+    out
+}
+
+impl ReconstructionModel {
+    /// Load the model a manifest describes and check the graph against the manifest.
+    pub fn load(manifest_path: &Path, options: &SessionOptions) -> Result<Self> {
+        let manifest = Manifest::load(manifest_path)?;
+        if manifest.kind != ModelKind::Reconstruction {
+            return Err(ModelError::Manifest {
+                path: manifest_path.to_owned(),
+                reason: format!("kind is {:?}, not reconstruction", manifest.kind),
+            });
+        }
+        let session = open_session(&manifest.model_path(), options)?;
+        manifest.check(&session)?;
+        Ok(Self { session, manifest })
+    }
+
+    pub fn mode(&self) -> InputMode {
+        self.manifest.mode.unwrap_or(InputMode::Rgb)
+    }
+
+    /// Model input size: the manifest's, else the first view's.
+    fn input_size(&self, first: &View<'_>) -> (usize, usize) {
+        (
+            self.manifest
+                .input_width
+                .unwrap_or(first.rgb.width as usize),
+            self.manifest
+                .input_height
+                .unwrap_or(first.rgb.height as usize),
+        )
+    }
+
+    /// Build the `images` (and `points`) tensors for `views`, at the model resolution.
+    pub fn preprocess(&self, views: &[View<'_>]) -> Result<ModelInputs> {
+        let Some(first) = views.first() else {
+            return Err(ModelError::Input("no views".into()));
+        };
+        let (width, height) = self.input_size(first);
+        let plane = width * height;
+        let norm = self.manifest.normalization.clone();
+        let mut images = Vec::with_capacity(views.len() * 3 * plane);
+        for view in views {
+            if view.rgb.data.len() != (view.rgb.width * view.rgb.height * 3) as usize
+                || view.rgb.width == 0
+            {
+                return Err(ModelError::Input(
+                    "colour image size does not match its data".into(),
+                ));
+            }
+            let mut planar = resize_rgb_planar(view.rgb, width, height);
+            if let Some(n) = &norm {
+                for c in 0..3 {
+                    for v in &mut planar[c * plane..(c + 1) * plane] {
+                        *v = (*v - n.image_mean[c]) / n.image_std[c];
+                    }
+                }
+            }
+            images.extend(planar);
+        }
+        if self.mode() == InputMode::Rgb {
+            return Ok(ModelInputs {
+                views: views.len(),
+                height,
+                width,
+                images,
+                points: None,
+            });
+        }
+        // World points from sensor depth, centred on the mean camera centre so the window's gauge is
+        // translation-free, then scaled as the model was trained.
+        let centre = views
+            .iter()
+            .map(|v| v.world_from_camera.translation)
+            .sum::<DVec3>()
+            / views.len() as f64;
+        let scale = f64::from(norm.as_ref().map_or(1.0, |n| n.points_scale));
+        let mut points = Vec::with_capacity(views.len() * 3 * plane);
+        for view in views {
+            let depth = view.depth.ok_or_else(|| {
+                ModelError::Input("an RGB-D model needs a depth image for every view".into())
+            })?;
+            let camera = resized_camera(&view.camera, width, height);
+            let metres = resize_depth(depth, width, height);
+            let mut planar = vec![0.0f32; 3 * plane];
+            for y in 0..height {
+                for x in 0..width {
+                    let d = metres[y * width + x];
+                    // Invalid depth becomes the centre (0 after centring), a neutral input.
+                    let world = if d.is_finite() && d > 0.0 {
+                        let p = camera.unproject(DVec2::new(x as f64, y as f64), f64::from(d));
+                        view.world_from_camera.transform_point(p)
+                    } else {
+                        centre
+                    };
+                    let n = (world - centre) / scale;
+                    for (c, value) in [n.x, n.y, n.z].into_iter().enumerate() {
+                        planar[c * plane + y * width + x] = value as f32;
+                    }
+                }
+            }
+            points.extend(planar);
+        }
+        Ok(ModelInputs {
+            views: views.len(),
+            height,
+            width,
+            images,
+            points: Some(points),
+        })
+    }
+
+    /// Run the model on already-built input tensors.
+    pub fn run_tensors(&mut self, inputs: ModelInputs) -> Result<Prediction> {
+        let ModelInputs {
+            views,
+            height,
+            width,
+            images,
+            points,
+        } = inputs;
+        let shape = [1usize, views, 3, height, width];
+        let images = ort::value::Tensor::from_array((shape, images))?;
+        let outputs = match points {
+            Some(points) => {
+                let points = ort::value::Tensor::from_array((shape, points))?;
+                self.session
+                    .run(ort::inputs!["images" => images, "points" => points])?
+            }
+            None => self.session.run(ort::inputs!["images" => images])?,
+        };
+        let extract = |name: &str, channels: Option<usize>| -> Result<Vec<f32>> {
+            let value = outputs
+                .get(name)
+                .ok_or_else(|| ModelError::Ort(format!("output `{name}` missing")))?;
+            let (out_shape, data) = value.try_extract_tensor::<f32>()?;
+            let dims: Vec<i64> = out_shape.iter().copied().collect();
+            let expected: Vec<i64> = match channels {
+                Some(c) => vec![1, views as i64, c as i64, height as i64, width as i64],
+                None => vec![1, views as i64, height as i64, width as i64],
+            };
+            if dims != expected {
+                return Err(ModelError::ContractMismatch {
+                    model: name.to_owned(),
+                    problems: vec![format!(
+                        "output `{name}` has shape {dims:?}, expected {expected:?}"
+                    )],
+                });
+            }
+            if let Some(i) = data.iter().position(|v| !v.is_finite()) {
+                return Err(ModelError::Ort(format!(
+                    "output `{name}` has a non-finite value at {i}"
+                )));
+            }
+            Ok(data.to_vec())
+        };
+        let embedding_dim = self.manifest.embedding_dim.unwrap_or(8);
+        let depth = extract("depth", None)?;
+        let gaussians = extract("gaussians", Some(GAUSSIAN_CHANNELS))?;
+        let embeddings = extract("embeddings", Some(embedding_dim))?;
+        let pose_enc = match outputs.get("pose_enc") {
+            Some(value) => Some(value.try_extract_tensor::<f32>()?.1.to_vec()),
+            None => None,
+        };
+        Ok(Prediction {
+            views,
+            height,
+            width,
+            embedding_dim,
+            depth,
+            gaussians,
+            embeddings,
+            pose_enc,
+        })
+    }
+
+    /// Pre-process, run, and return the raw prediction.
+    pub fn predict(&mut self, views: &[View<'_>]) -> Result<Prediction> {
+        let inputs = self.preprocess(views)?;
+        self.run_tensors(inputs)
+    }
+
+    /// Lift a prediction to world-space Gaussians with the views' cameras and poses. Colours are
+    /// the resized input colour plus the predicted residual.
+    pub fn to_gaussians(&self, prediction: &Prediction, views: &[View<'_>]) -> Result<Gaussians> {
+        let (w, h) = (prediction.width, prediction.height);
+        let plane = w * h;
+        let d_e = prediction.embedding_dim;
+        let mut all = Gaussians::with_dims(d_e, 0);
+        for (v, view) in views.iter().enumerate().take(prediction.views) {
+            let g = &prediction.gaussians
+                [v * GAUSSIAN_CHANNELS * plane..(v + 1) * GAUSSIAN_CHANNELS * plane];
+            let channel = |c: usize, i: usize| g[c * plane + i];
+            let rgb = resize_rgb_planar(view.rgb, w, h);
+            let opacity: Vec<f32> = (0..plane).map(|i| channel(0, i).clamp(0.0, 1.0)).collect();
+            let scale: Vec<[f32; 3]> = (0..plane)
+                .map(|i| [channel(1, i), channel(2, i), channel(3, i)])
+                .collect();
+            let rotation: Vec<[f32; 4]> = (0..plane)
+                .map(|i| [channel(4, i), channel(5, i), channel(6, i), channel(7, i)])
+                .collect();
+            let color: Vec<[f32; 3]> = (0..plane)
+                .map(|i| {
+                    std::array::from_fn(|c| {
+                        (rgb[c * plane + i] + channel(8 + c, i)).clamp(0.0, 1.0)
+                    })
+                })
+                .collect();
+            let e = &prediction.embeddings[v * d_e * plane..(v + 1) * d_e * plane];
+            let embedding: Vec<f32> = (0..plane)
+                .flat_map(|i| (0..d_e).map(move |k| e[k * plane + i]))
+                .collect();
+            let view_prediction = PixelAligned {
+                width: w,
+                height: h,
+                depth: &prediction.depth[v * plane..(v + 1) * plane],
+                opacity: &opacity,
+                scale: &scale,
+                rotation: &rotation,
+                color: &color,
+                embedding_dim: d_e,
+                embedding: &embedding,
+            };
+            let camera = resized_camera(&view.camera, w, h);
+            let lifted = lift(&view_prediction, &camera, &view.world_from_camera)
+                .map_err(|e| ModelError::Input(e.to_string()))?;
+            all.extend(&lifted);
+        }
+        Ok(all)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn resizing_preserves_constant_images_and_camera_geometry() {
+        let image = RgbImage {
+            width: 8,
+            height: 6,
+            data: vec![51; 8 * 6 * 3],
+        };
+        let planar = resize_rgb_planar(&image, 5, 3);
+        assert!(planar.iter().all(|v| (v - 0.2).abs() < 1e-6));
+        let camera = Camera::pinhole(640, 480, 500.0, 500.0, 319.5, 239.5).unwrap();
+        let half = resized_camera(&camera, 320, 240);
+        assert!((half.fx - 250.0).abs() < 1e-9 && (half.cx - 159.5).abs() < 1e-9);
+        // The same ray through corresponding pixel centres.
+        let a = camera.ray(DVec2::new(100.0 * 2.0 + 0.5, 50.0 * 2.0 + 0.5));
+        let b = half.ray(DVec2::new(100.0, 50.0));
+        assert!((a - b).length() < 1e-9);
+    }
+}
