@@ -33,11 +33,32 @@ pub enum Dim {
     Named(String),
 }
 
+/// Element type of a tensor in the contract.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum DType {
+    #[default]
+    F32,
+    I64,
+}
+
+impl DType {
+    fn matches(self, ty: ort::value::TensorElementType) -> bool {
+        matches!(
+            (self, ty),
+            (Self::F32, ort::value::TensorElementType::Float32)
+                | (Self::I64, ort::value::TensorElementType::Int64)
+        )
+    }
+}
+
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct TensorSpec {
     pub name: String,
     pub shape: Vec<Dim>,
+    #[serde(default)]
+    pub dtype: DType,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -68,6 +89,10 @@ pub struct Manifest {
     pub input_height: Option<usize>,
     pub input_width: Option<usize>,
     pub embedding_dim: Option<usize>,
+    /// Tokenizer file (text encoders), relative to the manifest.
+    pub tokenizer: Option<PathBuf>,
+    /// Longest token sequence; longer texts are truncated (text encoders).
+    pub max_tokens: Option<usize>,
     pub provenance: String,
     pub license: String,
     pub normalization: Option<Normalization>,
@@ -115,7 +140,7 @@ impl Manifest {
         self.dir.join(&self.file)
     }
 
-    /// Compare the graph's inputs and outputs with the manifest: names, ranks, fixed sizes, and f32.
+    /// Compare the graph's inputs and outputs with the manifest: names, ranks, fixed sizes, types.
     pub fn check(&self, session: &ort::session::Session) -> Result<()> {
         let mut problems = Vec::new();
         compare("input", &self.inputs, session.inputs(), &mut problems);
@@ -148,8 +173,11 @@ fn compare(
         };
         match outlet.dtype() {
             ort::value::ValueType::Tensor { ty, shape, .. } => {
-                if *ty != ort::value::TensorElementType::Float32 {
-                    problems.push(format!("{what} `{}` is {ty:?}, expected f32", spec.name));
+                if !spec.dtype.matches(*ty) {
+                    problems.push(format!(
+                        "{what} `{}` is {ty:?}, expected {:?}",
+                        spec.name, spec.dtype
+                    ));
                 }
                 let dims: Vec<i64> = shape.iter().copied().collect();
                 if dims.len() != spec.shape.len() {
