@@ -17,7 +17,7 @@ $(STAMP): tests/python/requirements.txt
 
 setup: $(STAMP)
 
-demo: build
+demo: setup build
 	./target/debug/groupforward demo
 
 lint:

@@ -52,6 +52,64 @@ impl Default for DemoOptions {
     }
 }
 
+/// Object classes of the simulator's library, the vocabulary open-vocabulary queries resolve to.
+pub const CLASS_NAMES: &[&str] = &[
+    "chair",
+    "table",
+    "desk",
+    "cabinet",
+    "trash bin",
+    "sink",
+    "bed",
+    "sofa",
+    "lamp",
+    "bookshelf",
+    "toilet",
+    "refrigerator",
+    "monitor",
+    "plant",
+    "box",
+    "pillow",
+];
+
+/// Free-form phrases the demo resolves to class names with the text encoder.
+pub const DEMO_QUERIES: &[&str] = &[
+    "garbage can",
+    "where one can wash hands",
+    "keep food cold",
+    "a place to sleep",
+    "computer screen",
+];
+
+/// A phrase, the class name it is closest to, and their cosine similarity.
+pub type VocabularyMatch = (String, String, f32);
+
+/// Resolve `queries` to the closest of `CLASS_NAMES` with the shipped text encoder.
+pub fn match_vocabulary(queries: &[&str]) -> std::result::Result<Vec<VocabularyMatch>, String> {
+    use crate::model::text::{cosine, TextEncoder};
+    crate::model::init_runtime(None).map_err(|e| e.to_string())?;
+    let manifest =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/all-MiniLM-L6-v2.toml");
+    let mut encoder = TextEncoder::load(&manifest, &crate::model::SessionOptions::default())
+        .map_err(|e| e.to_string())?;
+    let classes = CLASS_NAMES
+        .iter()
+        .map(|c| encoder.embed(c).map(|e| (*c, e)))
+        .collect::<crate::model::Result<Vec<_>>>()
+        .map_err(|e| e.to_string())?;
+    let mut matches = Vec::new();
+    for query in queries {
+        let q = encoder.embed(query).map_err(|e| e.to_string())?;
+        let (best, score) = classes
+            .iter()
+            .map(|(name, e)| (*name, cosine(&q, e)))
+            .max_by(|a, b| a.1.total_cmp(&b.1))
+            .ok_or("empty vocabulary")?;
+        matches.push(((*query).to_owned(), best.to_owned(), score));
+    }
+    Ok(matches)
+}
+
 /// What the demo observed, all of it read back from the running node.
 #[derive(Debug, Clone)]
 pub struct DemoReport {
@@ -59,6 +117,8 @@ pub struct DemoReport {
     pub frames_published: u64,
     pub malformed_published: u64,
     pub instances: usize,
+    /// Open-vocabulary lookups, or why the text encoder could not run.
+    pub vocabulary: std::result::Result<Vec<VocabularyMatch>, String>,
     pub elapsed: Duration,
 }
 
@@ -251,6 +311,7 @@ pub fn run_demo(options: &DemoOptions) -> Result<DemoReport> {
         frames_published: options.frames,
         malformed_published: 2,
         instances: instances.len(),
+        vocabulary: match_vocabulary(DEMO_QUERIES),
         elapsed: started.elapsed(),
     })
 }

@@ -206,5 +206,14 @@ fn print_report(report: &groupforward::demo::DemoReport) {
         "  list_instances service answered: {} instances (grouping is not built yet)",
         report.instances
     );
+    match &report.vocabulary {
+        Ok(matches) => {
+            println!("  open vocabulary (all-MiniLM-L6-v2 int8 via ONNX Runtime; class names only, affordance descriptions come with the sim library):");
+            for (query, class, score) in matches {
+                println!("    {query:<26} -> {class:<12} (cosine {score:.2})");
+            }
+        }
+        Err(e) => println!("  text encoder unavailable: {e}"),
+    }
     println!("  finished in {:.1} s", report.elapsed.as_secs_f64());
 }
