@@ -46,6 +46,7 @@ pub struct Config {
     pub tf: TfSection,
     pub ingest: IngestSection,
     pub status: StatusSection,
+    pub models: ModelsSection,
 }
 
 impl Default for Config {
@@ -57,6 +58,7 @@ impl Default for Config {
             tf: TfSection::default(),
             ingest: IngestSection::default(),
             status: StatusSection::default(),
+            models: ModelsSection::default(),
         }
     }
 }
@@ -209,6 +211,42 @@ impl Default for StatusSection {
     }
 }
 
+pub const DEFAULT_TEXT_ENCODER: &str = "models/all-MiniLM-L6-v2.toml";
+pub const DEFAULT_MODEL_THREADS: usize = 2;
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ModelsSection {
+    /// ONNX Runtime library; null: `ORT_DYLIB_PATH`, then the project's `.venv` (`make setup`).
+    pub onnxruntime: Option<std::path::PathBuf>,
+    /// Execution provider: cpu, cuda or tensorrt (GPU providers need the matching cargo feature).
+    pub provider: crate::model::Provider,
+    /// ONNX Runtime intra-op threads per model.
+    pub threads: usize,
+    /// Text encoder manifest (relative paths resolve against the working directory).
+    pub text_encoder: std::path::PathBuf,
+}
+
+impl Default for ModelsSection {
+    fn default() -> Self {
+        Self {
+            onnxruntime: None,
+            provider: crate::model::Provider::Cpu,
+            threads: DEFAULT_MODEL_THREADS,
+            text_encoder: DEFAULT_TEXT_ENCODER.into(),
+        }
+    }
+}
+
+impl ModelsSection {
+    pub fn session_options(&self) -> crate::model::SessionOptions {
+        crate::model::SessionOptions {
+            provider: self.provider,
+            intra_threads: self.threads,
+        }
+    }
+}
+
 impl Config {
     /// Read and validate a YAML config file.
     pub fn load(path: &Path) -> Result<Self> {
@@ -274,6 +312,9 @@ impl Config {
             return invalid(
                 "ingest.queue_depth and ingest.pending_frames must be at least 1".into(),
             );
+        }
+        if self.models.threads == 0 {
+            return invalid("models.threads must be at least 1".into());
         }
         if self.tf.world_frame.is_empty() {
             return invalid("tf.world_frame must not be empty".into());

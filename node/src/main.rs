@@ -120,6 +120,11 @@ fn main() -> Result<()> {
                     stop.store(true, Ordering::Relaxed);
                 });
             }
+            // Models are optional until their stages land: report what is usable, keep running.
+            match groupforward::model::init_runtime(config.models.onnxruntime.as_deref()) {
+                Ok(library) => tracing::info!("ONNX Runtime loaded from {}", library.display()),
+                Err(e) => tracing::error!("models unavailable: {e}"),
+            }
             let status = groupforward::node::run(&config, &transport, &shutdown)?;
             println!("{}", serde_json::to_string(&status)?);
         }
