@@ -122,29 +122,38 @@ pub struct DemoReport {
     pub elapsed: Duration,
 }
 
-/// One JSON API request through zenoh.
-pub fn query_json(
-    session: &zenoh::Session,
-    key: &str,
+/// The payload of the first reply to a get, or the error the replier sent.
+fn first_reply(
+    get: zenoh::session::SessionGetBuilder<'_, '_, zenoh::handlers::DefaultHandler>,
+    what: &'static str,
     timeout: Duration,
-) -> Result<serde_json::Value> {
-    let replies = session
-        .get(key)
+) -> Result<Vec<u8>> {
+    let replies = get
         .timeout(timeout)
         .wait()
         .map_err(|e| DemoError::Protocol(e.to_string()))?;
     let reply = replies
         .recv_timeout(timeout)
         .map_err(|e| DemoError::Protocol(e.to_string()))?
-        .ok_or(DemoError::Timeout("answer the JSON API", timeout))?;
+        .ok_or(DemoError::Timeout(what, timeout))?;
     match reply.result() {
-        Ok(sample) => serde_json::from_slice(&sample.payload().to_bytes())
-            .map_err(|e| DemoError::Protocol(format!("JSON API answered non-JSON: {e}"))),
+        Ok(sample) => Ok(sample.payload().to_bytes().into_owned()),
         Err(e) => Err(DemoError::Protocol(format!(
-            "JSON API error: {}",
+            "{what}: error reply {}",
             String::from_utf8_lossy(&e.payload().to_bytes())
         ))),
     }
+}
+
+/// One JSON API request through zenoh.
+pub fn query_json(
+    session: &zenoh::Session,
+    key: &str,
+    timeout: Duration,
+) -> Result<serde_json::Value> {
+    let payload = first_reply(session.get(key), "answer the JSON API", timeout)?;
+    serde_json::from_slice(&payload)
+        .map_err(|e| DemoError::Protocol(format!("JSON API answered non-JSON: {e}")))
 }
 
 /// Call an rmw_zenoh service as a ROS 2 client would: a get on the service key with a CDR request
@@ -165,21 +174,12 @@ pub fn call_service<S: RosService>(
         source_gid: rmw_zenoh::gid_for_token(&key),
     };
     let payload = cdr::encode(request).map_err(|e| DemoError::Protocol(e.to_string()))?;
-    let replies = session
+    let get = session
         .get(key)
         .payload(payload)
-        .attachment(attachment.encode())
-        .timeout(timeout)
-        .wait()
-        .map_err(|e| DemoError::Protocol(e.to_string()))?;
-    let reply = replies
-        .recv_timeout(timeout)
-        .map_err(|e| DemoError::Protocol(e.to_string()))?
-        .ok_or(DemoError::Timeout("answer the service", timeout))?;
-    let sample = reply.result().map_err(|e| {
-        DemoError::Protocol(String::from_utf8_lossy(&e.payload().to_bytes()).into_owned())
-    })?;
-    cdr::decode(&sample.payload().to_bytes()).map_err(|e| DemoError::Protocol(e.to_string()))
+        .attachment(attachment.encode());
+    let response = first_reply(get, "answer the service", timeout)?;
+    cdr::decode(&response).map_err(|e| DemoError::Protocol(e.to_string()))
 }
 
 /// Poll `check` every 20 ms until it returns `Some`, or fail after `timeout`.
