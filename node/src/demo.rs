@@ -52,31 +52,11 @@ impl Default for DemoOptions {
     }
 }
 
-/// Object classes of the simulator's library, the vocabulary open-vocabulary queries resolve to.
-pub const CLASS_NAMES: &[&str] = &[
-    "chair",
-    "table",
-    "desk",
-    "cabinet",
-    "trash bin",
-    "sink",
-    "bed",
-    "sofa",
-    "lamp",
-    "bookshelf",
-    "toilet",
-    "refrigerator",
-    "monitor",
-    "plant",
-    "box",
-    "pillow",
-];
-
 /// Free-form phrases the demo resolves to class names with the text encoder.
 pub const DEMO_QUERIES: &[&str] = &[
     "garbage can",
     "where one can wash hands",
-    "keep food cold",
+    "where the milk stays cold",
     "a place to sleep",
     "computer screen",
 ];
@@ -84,7 +64,8 @@ pub const DEMO_QUERIES: &[&str] = &[
 /// A phrase, the class name it is closest to, and their cosine similarity.
 pub type VocabularyMatch = (String, String, f32);
 
-/// Resolve `queries` to the closest of `CLASS_NAMES` with the shipped text encoder.
+/// Resolve `queries` to the closest class of the simulator's library (by name, description or
+/// affordance) with the text encoder.
 pub fn match_vocabulary(queries: &[&str]) -> std::result::Result<Vec<VocabularyMatch>, String> {
     use crate::model::text::{cosine, TextEncoder};
     crate::model::init_runtime(None).map_err(|e| e.to_string())?;
@@ -92,15 +73,25 @@ pub fn match_vocabulary(queries: &[&str]) -> std::result::Result<Vec<VocabularyM
         std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/all-MiniLM-L6-v2.toml");
     let mut encoder = TextEncoder::load(&manifest, &crate::model::SessionOptions::default())
         .map_err(|e| e.to_string())?;
-    let classes = CLASS_NAMES
-        .iter()
-        .map(|c| encoder.embed(c).map(|e| (*c, e)))
-        .collect::<crate::model::Result<Vec<_>>>()
-        .map_err(|e| e.to_string())?;
+    // The vocabulary: the simulator library's class names.
+    // Each class is known by its name, its description and its affordances ("wash hands"); a
+    // phrase matches a class through the closest of these texts.
+    let mut texts: Vec<(&'static str, Vec<f32>)> = Vec::new();
+    for class in groupforward_sim::library::classes() {
+        let phrases = [class.name, class.description]
+            .into_iter()
+            .chain(class.affordances.iter().copied());
+        for phrase in phrases {
+            texts.push((
+                class.name,
+                encoder.embed(phrase).map_err(|e| e.to_string())?,
+            ));
+        }
+    }
     let mut matches = Vec::new();
     for query in queries {
         let q = encoder.embed(query).map_err(|e| e.to_string())?;
-        let (best, score) = classes
+        let (best, score) = texts
             .iter()
             .map(|(name, e)| (*name, cosine(&q, e)))
             .max_by(|a, b| a.1.total_cmp(&b.1))

@@ -213,7 +213,7 @@ fn print_report(report: &groupforward::demo::DemoReport) {
     );
     match &report.vocabulary {
         Ok(matches) => {
-            println!("  open vocabulary (all-MiniLM-L6-v2 int8 via ONNX Runtime; class names only, affordance descriptions come with the sim library):");
+            println!("  open vocabulary (all-MiniLM-L6-v2 int8 via ONNX Runtime), phrase -> sim class by name, description or affordance:");
             for (query, class, score) in matches {
                 println!("    {query:<26} -> {class:<12} (cosine {score:.2})");
             }

@@ -1,9 +1,12 @@
 //! groupforward-sim: scenes with exact ground truth for groupforward.
 //!
-//! So far it holds [`testcard`], a deterministic camera rig (colour, depth, camera info and TF
-//! along a circular trajectory) that exercises the node's ingest end to end, and [`bag`], a
-//! rosbag2 MCAP writer. The scene renderer with objects, instance ground truth and effects builds
-//! on the same rig types.
+//! So far: [`library`], indoor object classes built from analytic primitives with descriptions and
+//! affordances; [`render`], a CPU ray caster producing RGB, metric depth, instance and class ids;
+//! [`testcard`], a deterministic camera rig that exercises the node's ingest end to end; and
+//! [`bag`], a rosbag2 MCAP writer. Scene files, procedural layouts, effects and the sim CLI build on
+//! these.
 
 pub mod bag;
+pub mod library;
+pub mod render;
 pub mod testcard;

@@ -121,17 +121,15 @@ impl Camera {
         Ok(camera)
     }
 
-    /// A camera with square pixels, horizontal field of view `fov_x` and the centre principal point.
+    /// A camera with square pixels, horizontal field of view `fov_x` and the principal point at the
+    /// image centre: `(w - 1) / 2`, since pixel centres are at integers.
     pub fn from_fov(width: u32, height: u32, fov_x: f64) -> Result<Self> {
         let f = f64::from(width) / 2.0 / (fov_x / 2.0).tan();
-        Self::pinhole(
-            width,
-            height,
-            f,
-            f,
-            f64::from(width) / 2.0,
-            f64::from(height) / 2.0,
-        )
+        let (cx, cy) = (
+            (f64::from(width) - 1.0) / 2.0,
+            (f64::from(height) - 1.0) / 2.0,
+        );
+        Self::pinhole(width, height, f, f, cx, cy)
     }
 
     pub fn validate(&self) -> Result<()> {
