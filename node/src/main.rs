@@ -83,6 +83,17 @@ enum Command {
         #[arg(long)]
         onnxruntime: Option<PathBuf>,
     },
+    /// Render one frame of a scene file: RGB, depth (16-bit mm), instance and class ids (16-bit) as
+    /// PNGs, plus a side-by-side preview.
+    SimRender {
+        scene: PathBuf,
+        /// Frame of the trajectory.
+        #[arg(long, default_value_t = 0)]
+        frame: usize,
+        /// Output directory.
+        #[arg(long, default_value = "sim_render")]
+        out: PathBuf,
+    },
     /// End-to-end demo in one process: simulated camera → node → status and services.
     Demo {
         /// Frames the simulated camera publishes.
@@ -176,6 +187,7 @@ fn main() -> Result<()> {
                 library.display()
             );
         }
+        Command::SimRender { scene, frame, out } => sim_render(&scene, frame, &out)?,
         Command::Demo { frames } => {
             let options = groupforward::demo::DemoOptions {
                 frames,
@@ -184,6 +196,68 @@ fn main() -> Result<()> {
             let report = groupforward::demo::run_demo(&options).context("running the demo")?;
             print_report(&report);
         }
+    }
+    Ok(())
+}
+
+fn sim_render(scene_path: &std::path::Path, frame: usize, out: &std::path::Path) -> Result<()> {
+    use groupforward_sim::scene::{camera_pose, pinhole, SceneFile};
+    let file = SceneFile::load(scene_path)?;
+    let scene = file.build()?;
+    let poses = file.robot_poses()?;
+    let pose = poses
+        .get(frame)
+        .with_context(|| format!("the trajectory has {} frames", poses.len()))?;
+    std::fs::create_dir_all(out)?;
+    for camera in &file.cameras {
+        let (rotation, position) = camera_pose(camera, pose);
+        let view = groupforward_sim::render::render(&scene, &pinhole(camera), rotation, position);
+        let (w, h) = (view.width, view.height);
+        let rgb = image::RgbImage::from_raw(w, h, view.rgb.clone()).context("rgb size")?;
+        let millimetres: Vec<u16> = view
+            .depth
+            .iter()
+            .map(|d| (d * 1000.0).round().clamp(0.0, 65535.0) as u16)
+            .collect();
+        let depth = image::ImageBuffer::<image::Luma<u16>, _>::from_raw(w, h, millimetres)
+            .context("depth size")?;
+        let instance =
+            image::ImageBuffer::<image::Luma<u16>, _>::from_raw(w, h, view.instance.clone())
+                .context("instance size")?;
+        let class = image::ImageBuffer::<image::Luma<u16>, _>::from_raw(w, h, view.class.clone())
+            .context("class size")?;
+        let stem = format!("{}_{frame:04}_{}", file.name, camera.name);
+        rgb.save(out.join(format!("{stem}_rgb.png")))?;
+        depth.save(out.join(format!("{stem}_depth_mm.png")))?;
+        instance.save(out.join(format!("{stem}_instance.png")))?;
+        class.save(out.join(format!("{stem}_class.png")))?;
+        // Preview: RGB | depth (near bright) | instances in distinct colours.
+        let max_depth = view.depth.iter().copied().fold(0.0f32, f32::max).max(1e-3);
+        let mut preview = image::RgbImage::new(3 * w, h);
+        for y in 0..h {
+            for x in 0..w {
+                let i = (y * w + x) as usize;
+                preview.put_pixel(x, y, *rgb.get_pixel(x, y));
+                let d = (255.0 * (1.0 - view.depth[i] / max_depth)) as u8;
+                preview.put_pixel(w + x, y, image::Rgb([d, d, d]));
+                let id = u32::from(view.instance[i]);
+                let color = if id == 0 {
+                    [0, 0, 0]
+                } else {
+                    [
+                        (id * 97 % 200 + 55) as u8,
+                        (id * 53 % 200 + 55) as u8,
+                        (id * 151 % 200 + 55) as u8,
+                    ]
+                };
+                preview.put_pixel(2 * w + x, y, image::Rgb(color));
+            }
+        }
+        preview.save(out.join(format!("{stem}_preview.png")))?;
+        println!(
+            "wrote {}/{stem}_{{rgb,depth_mm,instance,class,preview}}.png",
+            out.display()
+        );
     }
     Ok(())
 }
