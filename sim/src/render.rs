@@ -336,12 +336,9 @@ mod tests {
 
     /// A camera at 1.3 m looking horizontally along +x from the room's left side.
     fn pose() -> (DQuat, DVec3) {
-        // Optical z → world +x, optical x → world -y, optical y → world -z.
-        let rotation = DQuat::from_mat3(&glam::DMat3::from_cols(
-            DVec3::new(0.0, -1.0, 0.0),
-            DVec3::new(0.0, 0.0, -1.0),
-            DVec3::new(1.0, 0.0, 0.0),
-        ));
+        // Optical z → world +x, optical x → world -y, optical y → world -z (the body mounting).
+        let [x, y, z, w] = crate::testcard::BASE_FROM_OPTICAL;
+        let rotation = DQuat::from_xyzw(x, y, z, w);
         let pitch_down = DQuat::from_rotation_x(-0.35);
         (rotation * pitch_down, DVec3::new(0.4, 2.6, 1.3))
     }

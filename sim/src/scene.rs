@@ -4,7 +4,7 @@
 
 use std::path::Path;
 
-use glam::{DMat3, DQuat, DVec3};
+use glam::{DQuat, DVec3};
 use serde::Deserialize;
 
 use crate::library;
@@ -255,12 +255,8 @@ fn footprint(object: &PlacedObject) -> (DVec3, DVec3) {
 /// `world_from_camera` (REP-103 optical frame) of a camera mounted on a robot at `pose`.
 pub fn camera_pose(camera: &CameraSpec, pose: &RobotPose) -> (DQuat, DVec3) {
     let world_from_base = DQuat::from_rotation_z(pose.yaw);
-    // base_link (x forward, z up) from the optical frame (z forward, x right, y down).
-    let base_from_optical = DQuat::from_mat3(&DMat3::from_cols(
-        DVec3::new(0.0, -1.0, 0.0),
-        DVec3::new(0.0, 0.0, -1.0),
-        DVec3::X,
-    ));
+    let [x, y, z, w] = crate::testcard::BASE_FROM_OPTICAL;
+    let base_from_optical = DQuat::from_xyzw(x, y, z, w);
     let tilt = DQuat::from_rotation_y(camera.pitch_deg.to_radians());
     let rotation = world_from_base * tilt * base_from_optical;
     let position = pose.position + world_from_base * DVec3::from(camera.mount);
