@@ -1,13 +1,19 @@
 //! groupforward-sim: scenes with exact ground truth for groupforward.
 //!
-//! So far: [`library`], indoor object classes built from analytic primitives with descriptions and
-//! affordances; [`render`], a CPU ray caster producing RGB, metric depth, instance and class ids;
-//! [`testcard`], a deterministic camera rig that exercises the node's ingest end to end; and
-//! [`bag`], a rosbag2 MCAP writer; [`scene`], TOML scene files (room, objects, camera rig,
-//! trajectory). Procedural layouts, effects and the sim CLI build on these.
+//! [`library`]: indoor object classes built from analytic primitives, with descriptions,
+//! affordances and support surfaces. [`scene`]: TOML scene files (room, objects, camera rig,
+//! trajectory, effects). [`procedural`]: seeded, physically plausible layouts in named splits.
+//! [`render`]: a CPU ray caster producing RGB, metric depth, instance and class ids.
+//! [`effects`] and [`simulation`]: a scene played over time with only the effects it lists.
+//! [`bag`] and [`record`]: rosbag2 MCAP bags of what a robot records plus `/gt/...` topics.
+//! [`dataset`]: training datasets on disk. [`referring`]: referring expressions generated from
+//! ground truth. [`testcard`]: a plumbing rig for the node's ingest.
 
 pub mod bag;
+pub mod effects;
 pub mod library;
+pub mod procedural;
 pub mod render;
 pub mod scene;
+pub mod simulation;
 pub mod testcard;

@@ -15,6 +15,30 @@ pub enum Primitive {
     },
 }
 
+/// A horizontal surface of an object that can carry other objects (a table top, a shelf), in the
+/// object's frame at scale 1.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Surface {
+    /// Centre (x, y) and half extents of the usable rectangle.
+    pub center: [f64; 2],
+    pub half: [f64; 2],
+    /// Height of the surface above the object's base.
+    pub z: f64,
+    /// Free height above the surface (the next shelf, or unbounded on top).
+    pub clearance: f64,
+}
+
+/// Where an object of a class may stand: on the floor, or on another object's surface.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Placement {
+    Floor,
+    /// Small objects: on a surface of one of `supports`, or (if `floor_too`) on the floor.
+    OnTopOf {
+        supports: &'static [&'static str],
+        floor_too: bool,
+    },
+}
+
 /// One class of the library.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ObjectClass {
@@ -25,6 +49,61 @@ pub struct ObjectClass {
     pub description: &'static str,
     pub affordances: &'static [&'static str],
     pub parts: Vec<Primitive>,
+    pub surfaces: &'static [Surface],
+    pub placement: Placement,
+}
+
+/// Procedural scenes scale every object by a factor drawn from this range (the class's size range).
+pub const SCALE_RANGE: (f64, f64) = (0.85, 1.15);
+
+const UNBOUNDED: f64 = f64::INFINITY;
+
+const fn surface(cx: f64, cy: f64, hx: f64, hy: f64, z: f64, clearance: f64) -> Surface {
+    Surface {
+        center: [cx, cy],
+        half: [hx, hy],
+        z,
+        clearance,
+    }
+}
+
+/// Surfaces and placement rules per class name (classes not listed carry nothing and stand on the
+/// floor).
+fn support_rules(name: &str) -> (&'static [Surface], Placement) {
+    const TABLE: &[Surface] = &[surface(0.0, 0.0, 0.56, 0.36, 0.75, UNBOUNDED)];
+    const DESK: &[Surface] = &[surface(0.0, 0.0, 0.66, 0.31, 0.74, UNBOUNDED)];
+    const CABINET: &[Surface] = &[surface(0.0, 0.0, 0.36, 0.21, 1.8, UNBOUNDED)];
+    const BED: &[Surface] = &[surface(0.0, 0.3, 0.75, 0.6, 0.5, UNBOUNDED)];
+    const SOFA: &[Surface] = &[surface(0.0, 0.07, 0.95, 0.36, 0.44, UNBOUNDED)];
+    // Shelves at 0.62 and 1.22 m (boards 0.04 m thick, 0.56 m apart) and the top at 1.8 m.
+    const BOOKSHELF: &[Surface] = &[
+        surface(0.0, -0.01, 0.42, 0.13, 0.62, 0.54),
+        surface(0.0, -0.01, 0.42, 0.13, 1.22, 0.54),
+        surface(0.0, 0.0, 0.42, 0.15, 1.8, UNBOUNDED),
+    ];
+    const FRIDGE: &[Surface] = &[surface(0.0, 0.0, 0.3, 0.28, 1.8, UNBOUNDED)];
+    let on = |supports, floor_too| Placement::OnTopOf {
+        supports,
+        floor_too,
+    };
+    match name {
+        "table" => (TABLE, Placement::Floor),
+        "desk" => (DESK, Placement::Floor),
+        "cabinet" => (CABINET, Placement::Floor),
+        "bed" => (BED, Placement::Floor),
+        "sofa" => (SOFA, Placement::Floor),
+        "bookshelf" => (BOOKSHELF, Placement::Floor),
+        "refrigerator" => (FRIDGE, Placement::Floor),
+        "lamp" => (&[], on(&["table", "desk", "cabinet"][..], true)),
+        "monitor" => (&[], on(&["desk", "table"][..], false)),
+        "box" => (
+            &[],
+            on(&["bookshelf", "table", "cabinet", "refrigerator"][..], true),
+        ),
+        "pillow" => (&[], on(&["bed", "sofa"][..], false)),
+        "plant" => (&[], on(&["table", "desk"][..], true)),
+        _ => (&[], Placement::Floor),
+    }
 }
 
 fn cuboid(cx: f64, cy: f64, cz: f64, hx: f64, hy: f64, hz: f64) -> Primitive {
@@ -210,16 +289,19 @@ pub fn classes() -> Vec<ObjectClass> {
     ];
     all.drain(..)
         .enumerate()
-        .map(
-            |(i, (name, color, description, affordances, parts))| ObjectClass {
+        .map(|(i, (name, color, description, affordances, parts))| {
+            let (surfaces, placement) = support_rules(name);
+            ObjectClass {
                 name,
                 id: i as u16 + 1,
                 color,
                 description,
                 affordances,
                 parts,
-            },
-        )
+                surfaces,
+                placement,
+            }
+        })
         .collect()
 }
 
@@ -273,6 +355,29 @@ mod tests {
                 })
                 .fold(f64::INFINITY, f64::min);
             assert!(lowest.abs() < 1e-9, "{} starts at {lowest}", c.name);
+            if let Placement::OnTopOf { supports, .. } = c.placement {
+                for support in supports {
+                    let s = class(support).unwrap_or_else(|| panic!("{support}"));
+                    assert!(!s.surfaces.is_empty(), "{support} carries {}", c.name);
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn every_surface_lies_on_top_of_a_part_of_its_object() {
+        for c in classes() {
+            for s in c.surfaces {
+                let touching = c.parts.iter().any(|p| match *p {
+                    Primitive::Box { center, half } => {
+                        (center[2] + half[2] - s.z).abs() < 1e-9
+                            && (s.center[0] - center[0]).abs() + s.half[0] <= half[0] + 1e-9
+                            && (s.center[1] - center[1]).abs() + s.half[1] <= half[1] + 1e-9
+                    }
+                    Primitive::Cylinder { .. } => false,
+                });
+                assert!(touching, "{}: surface at z {} floats", c.name, s.z);
+            }
         }
     }
 }

@@ -18,11 +18,40 @@ pub struct PlacedObject {
     pub scale: f64,
     pub color: [f32; 3],
     pub parts: Vec<Primitive>,
+    /// Instance id of the object this one stands on (`None`: the floor).
+    pub support: Option<u16>,
 }
 
 impl PlacedObject {
     fn to_local(&self, p: DVec3) -> DVec3 {
         DQuat::from_rotation_z(-self.yaw) * (p - self.position) / self.scale
+    }
+
+    /// World-aligned bounding box (min, max corners) of the placed object.
+    pub fn bounds(&self) -> (DVec3, DVec3) {
+        let rotation = DQuat::from_rotation_z(self.yaw);
+        let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
+        for part in &self.parts {
+            let (center, half) = match *part {
+                Primitive::Box { center, half } => (DVec3::from(center), DVec3::from(half)),
+                Primitive::Cylinder {
+                    center,
+                    radius,
+                    half_height,
+                } => (DVec3::from(center), DVec3::new(radius, radius, half_height)),
+            };
+            for corner in 0..8 {
+                let sign = DVec3::new(
+                    if corner & 1 == 0 { -1.0 } else { 1.0 },
+                    if corner & 2 == 0 { -1.0 } else { 1.0 },
+                    if corner & 4 == 0 { -1.0 } else { 1.0 },
+                );
+                let p = self.position + rotation * ((center + sign * half) * self.scale);
+                lo = lo.min(p);
+                hi = hi.max(p);
+            }
+        }
+        (lo, hi)
     }
 
     /// Signed distance (metres) from a world point to the object's surface.
@@ -88,6 +117,49 @@ impl Pinhole {
             cx: (f64::from(width) - 1.0) / 2.0,
             cy: (f64::from(height) - 1.0) / 2.0,
         }
+    }
+}
+
+/// Plumb-bob (Brown-Conrady) lens distortion, as ROS `CameraInfo.d` = [k1, k2, p1, p2, k3] and
+/// OpenCV define it, on normalised image coordinates.
+#[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PlumbBob {
+    pub k1: f64,
+    pub k2: f64,
+    pub p1: f64,
+    pub p2: f64,
+    pub k3: f64,
+}
+
+impl PlumbBob {
+    pub fn coefficients(&self) -> [f64; 5] {
+        [self.k1, self.k2, self.p1, self.p2, self.k3]
+    }
+
+    /// Ideal (undistorted) → distorted normalised coordinates.
+    pub fn distort(&self, x: f64, y: f64) -> (f64, f64) {
+        let r2 = x * x + y * y;
+        let radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3));
+        (
+            x * radial + 2.0 * self.p1 * x * y + self.p2 * (r2 + 2.0 * x * x),
+            y * radial + self.p1 * (r2 + 2.0 * y * y) + 2.0 * self.p2 * x * y,
+        )
+    }
+
+    /// Distorted → ideal normalised coordinates: fixed-point iteration as OpenCV's
+    /// `undistortPoints`, which converges for the moderate distortion of real lenses.
+    pub fn undistort(&self, xd: f64, yd: f64) -> (f64, f64) {
+        let (mut x, mut y) = (xd, yd);
+        for _ in 0..30 {
+            let r2 = x * x + y * y;
+            let radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3));
+            let dx = 2.0 * self.p1 * x * y + self.p2 * (r2 + 2.0 * x * x);
+            let dy = self.p1 * (r2 + 2.0 * y * y) + 2.0 * self.p2 * x * y;
+            x = (xd - dx) / radial;
+            y = (yd - dy) / radial;
+        }
+        (x, y)
     }
 }
 
@@ -235,6 +307,24 @@ pub fn render(
     world_from_camera_rotation: DQuat,
     camera_position: DVec3,
 ) -> RenderedView {
+    render_distorted(
+        scene,
+        camera,
+        None,
+        world_from_camera_rotation,
+        camera_position,
+    )
+}
+
+/// Render one view through a lens with `distortion`: each pixel casts the ray its distorted
+/// coordinates come from, so images and ground truth are exactly what that lens sees.
+pub fn render_distorted(
+    scene: &Scene,
+    camera: &Pinhole,
+    distortion: Option<&PlumbBob>,
+    world_from_camera_rotation: DQuat,
+    camera_position: DVec3,
+) -> RenderedView {
     let (w, h) = (camera.width as usize, camera.height as usize);
     let forward = world_from_camera_rotation * DVec3::Z;
     let light = LIGHT.normalize();
@@ -243,11 +333,15 @@ pub fn render(
         .map(|v| {
             let mut row = RenderedView::with_capacity(camera.width, 1);
             for u in 0..w {
-                let ray_camera = DVec3::new(
+                let (x, y) = (
                     (u as f64 - camera.cx) / camera.fx,
                     (v as f64 - camera.cy) / camera.fy,
-                    1.0,
                 );
+                let (x, y) = match distortion {
+                    Some(lens) => lens.undistort(x, y),
+                    None => (x, y),
+                };
+                let ray_camera = DVec3::new(x, y, 1.0);
                 let dir = world_from_camera_rotation * ray_camera;
                 let hit = cast(scene, camera_position, dir);
                 let point = camera_position + hit.t * dir;
@@ -318,6 +412,7 @@ mod tests {
                 scale: 1.0,
                 color: c.color,
                 parts: c.parts,
+                support: None,
             }
         };
         Scene {

@@ -1,12 +1,15 @@
-//! Scene files (TOML): a room, objects from the library, a camera rig on the robot, and a
-//! trajectory. Unknown keys are errors, so a misspelt key never silently becomes a default.
-//! (Effects are not accepted yet: a scene that lists them is rejected rather than rendered without.)
+//! Scene files (TOML): a room, objects from the library (on the floor or on another object's
+//! surface), a camera rig on the robot, a trajectory and the effects to simulate. Unknown keys are
+//! errors, so a misspelt key never silently becomes a default.
 
 use std::path::Path;
 
 use glam::{DQuat, DVec3};
-use serde::Deserialize;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
 
+use crate::effects::Effect;
 use crate::library;
 use crate::render::{Pinhole, PlacedObject, Scene};
 
@@ -30,17 +33,23 @@ pub enum SceneError {
 
 pub type Result<T> = std::result::Result<T, SceneError>;
 
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct SceneFile {
     pub name: String,
+    /// Seeds everything random: effects and random-walk trajectories.
+    #[serde(default)]
+    pub seed: u64,
     pub room: RoomSpec,
     pub objects: Vec<ObjectSpec>,
     pub cameras: Vec<CameraSpec>,
     pub trajectory: Trajectory,
+    /// The effects to simulate, in this order; none by default (the clean render).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub effects: Vec<Effect>,
 }
 
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct RoomSpec {
     /// Extent along x, y, z (metres); the room spans [0, size].
@@ -49,27 +58,39 @@ pub struct RoomSpec {
     pub wall_color: [f32; 3],
 }
 
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct ObjectSpec {
     pub class: String,
-    /// Position of the object's base on the floor (x, y), metres.
+    /// Position of the object's base (x, y), metres, on the floor or on its support's surface.
     pub position: [f64; 2],
     #[serde(default)]
     pub yaw_deg: f64,
     #[serde(default = "unit")]
     pub scale: f64,
     /// Overrides the class colour.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub color: Option<[f32; 3]>,
+    /// Index (in this list, earlier than this object) of the object it stands on; absent: the floor.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub on: Option<usize>,
+    /// Which surface of the support (0: the first, e.g. a bookshelf's lowest shelf).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub surface: usize,
 }
 
 fn unit() -> f64 {
     1.0
 }
 
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+fn is_zero(value: &usize) -> bool {
+    *value == 0
+}
+
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct CameraSpec {
+    /// Also the topic prefix (`/<name>/color/image_raw`) and the frame (`<name>_color_optical_frame`).
     pub name: String,
     pub width: u32,
     pub height: u32,
@@ -81,7 +102,7 @@ pub struct CameraSpec {
     pub pitch_deg: f64,
 }
 
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields, tag = "kind", rename_all = "snake_case")]
 pub enum Trajectory {
     /// The robot circles `center`, facing it.
@@ -97,6 +118,16 @@ pub enum Trajectory {
         frames_per_segment: usize,
         rate_hz: f64,
     },
+    /// A seeded random walk from `start` (x, y, yaw_deg) through free space: constant speed,
+    /// heading perturbed by `turn_deg` (standard deviation per frame), turning away from walls and
+    /// objects.
+    RandomWalk {
+        start: [f64; 3],
+        frames: usize,
+        rate_hz: f64,
+        speed: f64,
+        turn_deg: f64,
+    },
 }
 
 /// The robot's pose at one frame: `world_from_base` and the stamp offset.
@@ -106,6 +137,12 @@ pub struct RobotPose {
     pub position: DVec3,
     pub yaw: f64,
 }
+
+/// Tolerance for "touching is not overlapping" (metres).
+const CONTACT: f64 = 1e-6;
+
+/// Clearance the robot keeps from walls and from objects standing on the floor (metres).
+pub const ROBOT_CLEARANCE: f64 = 0.35;
 
 impl SceneFile {
     pub fn load(path: &Path) -> Result<Self> {
@@ -117,7 +154,14 @@ impl SceneFile {
         toml::from_str(&text).map_err(|e| read(e.to_string()))
     }
 
-    /// Place the objects: library lookup, inside the room, no two objects' footprints overlapping.
+    /// The scene as TOML, in the form [`SceneFile::load`] reads.
+    pub fn to_toml(&self) -> Result<String> {
+        toml::to_string(self).map_err(|e| SceneError::Invalid(e.to_string()))
+    }
+
+    /// Place the objects: library lookup, inside the room, supported objects on their support's
+    /// surface within its clearance, and no two objects' bounds overlapping (except an object and
+    /// its support).
     pub fn build(&self) -> Result<Scene> {
         let size = DVec3::from(self.room.size);
         if !(size.min_element() > 0.5 && size.is_finite()) {
@@ -126,8 +170,14 @@ impl SceneFile {
                 self.room.size
             )));
         }
-        let mut objects = Vec::new();
-        let mut footprints = Vec::new();
+        if self.cameras.is_empty() {
+            return Err(SceneError::Invalid("the robot carries no camera".into()));
+        }
+        for effect in &self.effects {
+            effect.validate().map_err(SceneError::Invalid)?;
+        }
+        let mut objects: Vec<PlacedObject> = Vec::new();
+        let mut bounds: Vec<(DVec3, DVec3)> = Vec::new();
         for (index, spec) in self.objects.iter().enumerate() {
             let class = library::class(&spec.class)
                 .ok_or_else(|| SceneError::UnknownClass(spec.class.clone()))?;
@@ -139,7 +189,10 @@ impl SceneFile {
             if !(spec.scale > 0.0 && spec.scale.is_finite()) {
                 return Err(bad(format!("has scale {}", spec.scale)));
             }
-            let object = PlacedObject {
+            if !(spec.position.iter().all(|p| p.is_finite()) && spec.yaw_deg.is_finite()) {
+                return Err(bad("has a non-finite pose".into()));
+            }
+            let mut object = PlacedObject {
                 instance_id: index as u16 + 1,
                 class_id: class.id,
                 position: DVec3::new(spec.position[0], spec.position[1], 0.0),
@@ -147,18 +200,69 @@ impl SceneFile {
                 scale: spec.scale,
                 color: spec.color.unwrap_or(class.color),
                 parts: class.parts,
+                support: None,
             };
-            let (lo, hi) = footprint(&object);
+            if let Some(on) = spec.on {
+                let support = objects
+                    .get(on)
+                    .ok_or_else(|| bad(format!("stands on object {on}, not an earlier one")))?;
+                let support_class = library::classes()
+                    .into_iter()
+                    .find(|c| c.id == support.class_id)
+                    .ok_or_else(|| bad("support of an unknown class".into()))?;
+                let surface = support_class.surfaces.get(spec.surface).ok_or_else(|| {
+                    bad(format!(
+                        "stands on surface {} of a {} that has {}",
+                        spec.surface,
+                        support_class.name,
+                        support_class.surfaces.len()
+                    ))
+                })?;
+                object.position.z = support.position.z + surface.z * support.scale;
+                object.support = Some(support.instance_id);
+                let (lo, hi) = object.bounds();
+                if hi.z - lo.z > surface.clearance * support.scale + CONTACT {
+                    return Err(bad(format!(
+                        "is {:.2} m tall, the surface has {:.2} m of room",
+                        hi.z - lo.z,
+                        surface.clearance * support.scale
+                    )));
+                }
+                // Every corner of the object's footprint lies on the surface's rectangle.
+                let to_support = DQuat::from_rotation_z(-support.yaw);
+                for corner in [
+                    DVec3::new(lo.x, lo.y, 0.0),
+                    DVec3::new(lo.x, hi.y, 0.0),
+                    DVec3::new(hi.x, lo.y, 0.0),
+                    DVec3::new(hi.x, hi.y, 0.0),
+                ] {
+                    let mut local = to_support * (corner - support.position) / support.scale;
+                    local.x -= surface.center[0];
+                    local.y -= surface.center[1];
+                    if local.x.abs() > surface.half[0] + CONTACT
+                        || local.y.abs() > surface.half[1] + CONTACT
+                    {
+                        return Err(bad(format!(
+                            "overhangs the surface of object {on} (`{}`)",
+                            support_class.name
+                        )));
+                    }
+                }
+            }
+            let (lo, hi) = object.bounds();
             if lo.x < 0.0 || lo.y < 0.0 || hi.x > size.x || hi.y > size.y || hi.z > size.z {
                 return Err(bad("does not fit in the room".into()));
             }
-            for (other, (olo, ohi)) in footprints.iter().enumerate() {
-                let (olo, ohi): (&DVec3, &DVec3) = (olo, ohi);
-                if lo.x < ohi.x && olo.x < hi.x && lo.y < ohi.y && olo.y < hi.y {
+            for (other, (olo, ohi)) in bounds.iter().enumerate() {
+                if Some(other) == spec.on {
+                    continue;
+                }
+                let apart = (0..3).any(|a| lo[a] >= ohi[a] - CONTACT || olo[a] >= hi[a] - CONTACT);
+                if !apart {
                     return Err(SceneError::Overlap(other, index));
                 }
             }
-            footprints.push((lo, hi));
+            bounds.push((lo, hi));
             objects.push(object);
         }
         Ok(Scene {
@@ -221,35 +325,67 @@ impl SceneFile {
                 }
                 Ok(poses)
             }
+            Trajectory::RandomWalk {
+                start,
+                frames,
+                rate_hz,
+                speed,
+                turn_deg,
+            } => {
+                let scene = self.build()?;
+                let mut position = DVec3::new(start[0], start[1], 0.0);
+                if !is_free(&scene, position) {
+                    return Err(SceneError::Invalid(format!(
+                        "the random walk starts at {start:?}, inside an object or a wall"
+                    )));
+                }
+                let mut rng = ChaCha8Rng::seed_from_u64(self.seed ^ 0x7261_6e64_6f6d_5f77);
+                let normal = rand_distr::Normal::new(0.0, turn_deg.to_radians().max(0.0))
+                    .map_err(|e| SceneError::Invalid(e.to_string()))?;
+                let step = speed / rate_hz;
+                let mut yaw = start[2].to_radians();
+                let mut poses = Vec::with_capacity(*frames);
+                for i in 0..*frames {
+                    poses.push(RobotPose {
+                        time_secs: i as f64 / rate_hz,
+                        position,
+                        yaw,
+                    });
+                    yaw += rng.sample(normal);
+                    // Blocked ahead: turn (a random way, by a growing angle) until free.
+                    for attempt in 0..24 {
+                        let next = position + step * DVec3::new(yaw.cos(), yaw.sin(), 0.0);
+                        if is_free(&scene, next) {
+                            position = next;
+                            break;
+                        }
+                        let side = if rng.random::<bool>() { 1.0 } else { -1.0 };
+                        yaw += side * (0.3 + 0.1 * f64::from(attempt));
+                    }
+                }
+                Ok(poses)
+            }
         }
     }
 }
 
-/// World-aligned bounds of an object (for placement checks).
-fn footprint(object: &PlacedObject) -> (DVec3, DVec3) {
-    let rotation = DQuat::from_rotation_z(object.yaw);
-    let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
-    for part in &object.parts {
-        let (center, half) = match *part {
-            library::Primitive::Box { center, half } => (DVec3::from(center), DVec3::from(half)),
-            library::Primitive::Cylinder {
-                center,
-                radius,
-                half_height,
-            } => (DVec3::from(center), DVec3::new(radius, radius, half_height)),
-        };
-        for corner in 0..8 {
-            let sign = DVec3::new(
-                if corner & 1 == 0 { -1.0 } else { 1.0 },
-                if corner & 2 == 0 { -1.0 } else { 1.0 },
-                if corner & 4 == 0 { -1.0 } else { 1.0 },
-            );
-            let p = object.position + rotation * ((center + sign * half) * object.scale);
-            lo = lo.min(p);
-            hi = hi.max(p);
-        }
+/// Whether the robot can stand at `position`: clear of walls and floor-standing objects.
+pub fn is_free(scene: &Scene, position: DVec3) -> bool {
+    let c = ROBOT_CLEARANCE;
+    if position.x < c
+        || position.y < c
+        || position.x > scene.room_size.x - c
+        || position.y > scene.room_size.y - c
+    {
+        return false;
     }
-    (lo, hi)
+    scene.objects.iter().all(|object| {
+        let (lo, hi) = object.bounds();
+        position.x < lo.x - c
+            || position.x > hi.x + c
+            || position.y < lo.y - c
+            || position.y > hi.y + c
+    })
 }
 
 /// `world_from_camera` (REP-103 optical frame) of a camera mounted on a robot at `pose`.
@@ -261,6 +397,16 @@ pub fn camera_pose(camera: &CameraSpec, pose: &RobotPose) -> (DQuat, DVec3) {
     let rotation = world_from_base * tilt * base_from_optical;
     let position = pose.position + world_from_base * DVec3::from(camera.mount);
     (rotation, position)
+}
+
+/// `base_from_optical` of a camera mount (for `/tf_static`).
+pub fn mount_pose(camera: &CameraSpec) -> (DQuat, DVec3) {
+    let [x, y, z, w] = crate::testcard::BASE_FROM_OPTICAL;
+    let tilt = DQuat::from_rotation_y(camera.pitch_deg.to_radians());
+    (
+        tilt * DQuat::from_xyzw(x, y, z, w),
+        DVec3::from(camera.mount),
+    )
 }
 
 /// The pinhole model of a camera spec.
@@ -307,11 +453,13 @@ mod tests {
     #[test]
     fn unknown_keys_classes_and_overlaps_are_errors() {
         let base = std::fs::read_to_string(scenes_dir().join("two_chairs.toml")).unwrap();
-        let with_effects = format!("{base}\n[[effects]]\nkind = \"sensor_noise\"\n");
+        let misspelt = format!("{base}\n[[effects]]\nkind = \"sensor_noise\"\nsigmaa = 2.0\n");
         assert!(
-            toml::from_str::<SceneFile>(&with_effects).is_err(),
-            "effects are not accepted yet"
+            toml::from_str::<SceneFile>(&misspelt).is_err(),
+            "unknown effect key"
         );
+        let unknown_effect = format!("{base}\n[[effects]]\nkind = \"lens_flare\"\n");
+        assert!(toml::from_str::<SceneFile>(&unknown_effect).is_err());
         let unknown = base.replace("class = \"table\"", "class = \"spaceship\"");
         let file: SceneFile = toml::from_str(&unknown).unwrap();
         assert!(matches!(file.build(), Err(SceneError::UnknownClass(_))));
