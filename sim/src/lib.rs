@@ -10,9 +10,12 @@
 //! ground truth. [`testcard`]: a plumbing rig for the node's ingest.
 
 pub mod bag;
+pub mod dataset;
 pub mod effects;
 pub mod library;
 pub mod procedural;
+pub mod record;
+pub mod referring;
 pub mod render;
 pub mod scene;
 pub mod simulation;

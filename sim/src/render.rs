@@ -121,7 +121,8 @@ impl Pinhole {
 }
 
 /// Plumb-bob (Brown-Conrady) lens distortion, as ROS `CameraInfo.d` = [k1, k2, p1, p2, k3] and
-/// OpenCV define it, on normalised image coordinates.
+/// OpenCV define it, on normalised image coordinates. Deliberately independent of the node's
+/// camera model: the simulator is the ground truth the node's undistortion is tested against.
 #[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize, serde::Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct PlumbBob {
