@@ -488,6 +488,38 @@ pub fn registry() -> &'static Registry {
     })
 }
 
+/// The full `ros2msg` definition of an embedded message type as `ros2 bag record` stores it in
+/// an MCAP schema: the type's own `.msg` text, then every type it references (transitively), each
+/// after a separator line of 80 `=` and a `MSG: <package>/msg/<Name>` line. Readers resolve nested
+/// types from it without any other definitions at hand.
+pub fn message_definition(type_name: &str) -> Result<String> {
+    let registry = registry();
+    let text_of = |name: &str| {
+        EMBEDDED
+            .iter()
+            .find(|(kind, pkg, msg, _)| *kind == "msg" && format!("{pkg}/msg/{msg}") == name)
+            .map(|(_, _, _, text)| *text)
+            .ok_or_else(|| IdlError::UnknownType(name.to_owned()))
+    };
+    let mut referenced = BTreeSet::new();
+    let mut queue: Vec<&str> = nested_names(registry.get(type_name)?).collect();
+    while let Some(name) = queue.pop() {
+        if referenced.insert(name.to_owned()) {
+            queue.extend(nested_names(registry.get(name)?));
+        }
+    }
+    let mut out = text_of(type_name)?.trim_end().to_owned();
+    for name in &referenced {
+        out.push_str(&format!(
+            "\n{}\nMSG: {name}\n{}",
+            "=".repeat(80),
+            text_of(name)?.trim_end()
+        ));
+    }
+    out.push('\n');
+    Ok(out)
+}
+
 /// RIHS01 hash of an embedded type, e.g. `type_hash("sensor_msgs/msg/Image")`.
 pub fn type_hash(type_name: &str) -> Result<String> {
     registry().type_hash(type_name)
@@ -496,6 +528,35 @@ pub fn type_hash(type_name: &str) -> Result<String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn message_definition_carries_every_nested_type_once() {
+        let full = message_definition("sensor_msgs/msg/Image").unwrap();
+        assert!(full.starts_with(
+            EMBEDDED
+                .iter()
+                .find(|e| e.2 == "Image")
+                .unwrap()
+                .3
+                .trim_end()
+        ));
+        assert_eq!(full.matches("MSG: std_msgs/msg/Header\n").count(), 1);
+        assert_eq!(
+            full.matches("MSG: builtin_interfaces/msg/Time\n").count(),
+            1
+        );
+        assert_eq!(full.matches("MSG: ").count(), 2);
+        let detections = message_definition("vision_msgs/msg/Detection3DArray").unwrap();
+        for nested in [
+            "Detection3D",
+            "BoundingBox3D",
+            "PoseWithCovariance",
+            "Quaternion",
+        ] {
+            assert!(detections.contains(&format!("/msg/{nested}\n")), "{nested}");
+        }
+        assert!(message_definition("nope_msgs/msg/Nope").is_err());
+    }
 
     #[test]
     fn known_upstream_hashes() {

@@ -1,6 +1,9 @@
-//! `groupforward demo`: the whole node in one process over an embedded zenoh peer. A simulated
-//! camera publishes exactly what a robot would (rmw_zenoh keys, CDR, attachments), the node ingests
-//! it, and the demo then asks the node what it saw through its JSON API and its ROS 2 service.
+//! `groupforward demo`: the whole node in one process over an embedded zenoh peer. The simulator
+//! records a scene as a rosbag2 bag (what a robot records, plus ground truth on `/gt/...`), the
+//! bag is replayed over zenoh exactly as `groupforward replay` would (rmw_zenoh keys, CDR,
+//! attachments), the node ingests it, and the demo then asks the node what it saw through its
+//! JSON API and its ROS 2 service, next to the scene's ground truth and the referring expressions
+//! generated from it.
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -9,11 +12,14 @@ use std::time::{Duration, Instant};
 use groupforward_msgs::geometry_msgs::Quaternion;
 use groupforward_msgs::gf_msgs::{ListInstancesRequest, ListInstancesResponse, NodeStatus};
 use groupforward_msgs::rmw_zenoh::{self, Attachment, Qos};
-use groupforward_msgs::sensor_msgs::{CameraInfo, Image};
+use groupforward_msgs::sensor_msgs::Image;
 use groupforward_msgs::services::ListInstances;
 use groupforward_msgs::tf2_msgs::TFMessage;
 use groupforward_msgs::{cdr, RosMessage, RosService};
-use groupforward_sim::testcard::TestCard;
+use groupforward_sim::record::{record_to_memory, RecordOptions, RecordSummary};
+use groupforward_sim::referring::Expression;
+use groupforward_sim::scene::SceneFile;
+use groupforward_sim::simulation::Simulation;
 use zenoh::Wait;
 
 use crate::config::{Config, ZenohSection};
@@ -29,25 +35,25 @@ pub enum DemoError {
     Timeout(&'static str, Duration),
     #[error("{0}")]
     Protocol(String),
+    #[error("simulator: {0}")]
+    Sim(String),
 }
 
 pub type Result<T> = std::result::Result<T, DemoError>;
 
 #[derive(Debug, Clone, PartialEq)]
 pub struct DemoOptions {
-    pub frames: u64,
-    pub rate_hz: f64,
-    pub width: u32,
-    pub height: u32,
+    /// The scene the simulator records (default: the embedded `two_chairs` scene).
+    pub scene: SceneFile,
+    /// Replay speed factor of the recorded bag.
+    pub rate: f64,
 }
 
 impl Default for DemoOptions {
     fn default() -> Self {
         Self {
-            frames: 30,
-            rate_hz: 15.0,
-            width: 320,
-            height: 240,
+            scene: SceneFile::builtin("two_chairs").unwrap_or_else(|| unreachable!()),
+            rate: 2.0,
         }
     }
 }
@@ -101,13 +107,22 @@ pub fn match_vocabulary(queries: &[&str]) -> std::result::Result<Vec<VocabularyM
     Ok(matches)
 }
 
-/// What the demo observed, all of it read back from the running node.
+/// One ground-truth object of the scene: instance id, class, position of its base.
+pub type GroundTruthObject = (u16, String, [f64; 3]);
+
+/// What the demo observed, all of it read back from the running node, with the scene's ground
+/// truth next to it.
 #[derive(Debug, Clone)]
 pub struct DemoReport {
+    pub scene: String,
+    pub recorded: RecordSummary,
+    pub replayed_messages: u64,
     pub status: NodeStatus,
-    pub frames_published: u64,
     pub malformed_published: u64,
     pub instances: usize,
+    pub objects: Vec<GroundTruthObject>,
+    /// A sample of the scene's generated referring expressions (one per relation type).
+    pub expressions: Vec<Expression>,
     /// Open-vocabulary lookups, or why the text encoder could not run.
     pub vocabulary: std::result::Result<Vec<VocabularyMatch>, String>,
     pub elapsed: Duration,
@@ -219,54 +234,69 @@ pub fn run_demo(options: &DemoOptions) -> Result<DemoReport> {
         query_json(&session, &status_key, Duration::from_millis(500)).ok()
     })?;
 
+    // The simulator records the scene; the bag is replayed into the node.
+    let sim = Simulation::new(options.scene.clone()).map_err(|e| DemoError::Sim(e.to_string()))?;
+    let (bag, recorded) = record_to_memory(&sim, &RecordOptions::default())
+        .map_err(|e| DemoError::Sim(e.to_string()))?;
+    let rig = ZenohTransport::new(session.clone(), domain, "/", "demo_replay")?;
+    let replayed = crate::replay::replay_buffers(
+        &[format!("{}.mcap", options.scene.name)],
+        &[bag],
+        &rig,
+        crate::replay::ReplayOptions {
+            rate: options.rate,
+            loops: 1,
+            progress: false,
+        },
+    )
+    .map_err(|e| DemoError::Protocol(e.to_string()))?;
+
+    // Bad input the node must reject and count while it keeps serving: a truncated image and a
+    // transform with a NaN quaternion.
     let camera = &config.cameras[0];
-    let card = TestCard {
-        width: options.width,
-        height: options.height,
-        rate_hz: options.rate_hz,
-        ..TestCard::default()
-    };
-    let rig = ZenohTransport::new(session.clone(), domain, "/", "demo_camera")?;
     let advertise = |name: &str, type_name: &str| -> Result<_> {
         Ok(rig.advertise(&Endpoint::new(name, type_name, Qos::sensor_data())?)?)
     };
     let image_pub = advertise(&camera.image_topic, Image::TYPE_NAME)?;
-    let info_pub = advertise(&camera.camera_info_topic, CameraInfo::TYPE_NAME)?;
-    let depth_topic = camera
-        .depth_topic
-        .clone()
-        .unwrap_or_else(|| "/camera/depth/image_raw".into());
-    let depth_pub = advertise(&depth_topic, Image::TYPE_NAME)?;
     let tf_pub = advertise(&config.tf.topic, TFMessage::TYPE_NAME)?;
-    let tf_static_pub = advertise(&config.tf.static_topic, TFMessage::TYPE_NAME)?;
-    let encode =
-        |m: &dyn erased::Encode| m.encode().map_err(|e| DemoError::Protocol(e.to_string()));
-
-    tf_static_pub.publish(&encode(&card.tf_static())?)?;
-    let period = Duration::from_secs_f64(1.0 / options.rate_hz);
-    for index in 0..options.frames {
-        let frame = card.frame(index);
-        tf_pub.publish(&encode(&frame.tf)?)?;
-        info_pub.publish(&encode(&frame.camera_info)?)?;
-        depth_pub.publish(&encode(&frame.depth)?)?;
-        image_pub.publish(&encode(&frame.image)?)?;
-        std::thread::sleep(period);
-    }
-    // Bad input the node must reject and count while it keeps serving: a truncated image and a
-    // transform with a NaN quaternion.
-    let mut truncated = encode(&card.image(0))?;
+    let first = sim.frame(0);
+    let view = first
+        .views
+        .first()
+        .ok_or_else(|| DemoError::Sim("frame 0 of the scene is dropped".into()))?;
+    let image = Image {
+        header: Default::default(),
+        height: view.truth.height,
+        width: view.truth.width,
+        encoding: "rgb8".into(),
+        is_bigendian: 0,
+        step: view.truth.width * 3,
+        data: view.sensor_rgb().to_vec(),
+    };
+    let mut truncated = cdr::encode(&image).map_err(|e| DemoError::Protocol(e.to_string()))?;
     truncated.truncate(truncated.len() / 2);
     image_pub.publish(&truncated)?;
-    let mut bad_tf = card.tf(0);
-    bad_tf.transforms[0].transform.rotation = Quaternion {
-        x: f64::NAN,
-        y: 0.0,
-        z: 0.0,
-        w: 1.0,
+    let bad_tf = TFMessage {
+        transforms: vec![groupforward_msgs::geometry_msgs::TransformStamped {
+            header: groupforward_msgs::std_msgs::Header {
+                stamp: Default::default(),
+                frame_id: config.tf.world_frame.clone(),
+            },
+            child_frame_id: "base_link".into(),
+            transform: groupforward_msgs::geometry_msgs::Transform {
+                rotation: Quaternion {
+                    x: f64::NAN,
+                    y: 0.0,
+                    z: 0.0,
+                    w: 1.0,
+                },
+                ..Default::default()
+            },
+        }],
     };
-    tf_pub.publish(&encode(&bad_tf)?)?;
+    tf_pub.publish(&cdr::encode(&bad_tf).map_err(|e| DemoError::Protocol(e.to_string()))?)?;
 
-    let expected = options.frames;
+    let expected = (recorded.frames - recorded.dropped) as u64;
     let status = wait_for("report every frame", timeout, || {
         let json = query_json(&session, &status_key, Duration::from_millis(500)).ok()?;
         let status: NodeStatus = serde_json::from_value(json).ok()?;
@@ -297,25 +327,33 @@ pub fn run_demo(options: &DemoOptions) -> Result<DemoReport> {
         }
         Err(_) => return Err(DemoError::Protocol("the node thread panicked".into())),
     }
+    let classes = groupforward_sim::library::classes();
+    let objects = sim
+        .scene
+        .objects
+        .iter()
+        .map(|o| {
+            let class = classes
+                .iter()
+                .find(|c| c.id == o.class_id)
+                .map_or("unknown", |c| c.name);
+            (o.instance_id, class.to_owned(), o.position.to_array())
+        })
+        .collect();
+    let mut expressions = groupforward_sim::referring::scene_expressions(&options.scene)
+        .map_err(|e| DemoError::Sim(e.to_string()))?;
+    let mut seen = std::collections::BTreeSet::new();
+    expressions.retain(|e| seen.insert(e.relation));
     Ok(DemoReport {
+        scene: options.scene.name.clone(),
+        recorded,
+        replayed_messages: replayed.published,
         status,
-        frames_published: options.frames,
         malformed_published: 2,
         instances: instances.len(),
+        objects,
+        expressions,
         vocabulary: match_vocabulary(DEMO_QUERIES),
         elapsed: started.elapsed(),
     })
-}
-
-/// Object-safe encoding, so one closure can encode every message type.
-mod erased {
-    pub trait Encode {
-        fn encode(&self) -> groupforward_msgs::cdr::Result<Vec<u8>>;
-    }
-
-    impl<T: serde::Serialize> Encode for T {
-        fn encode(&self) -> groupforward_msgs::cdr::Result<Vec<u8>> {
-            groupforward_msgs::cdr::encode(self)
-        }
-    }
 }

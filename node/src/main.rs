@@ -1,4 +1,6 @@
-//! The `groupforward` command line: `run`, `replay`, `demo`.
+//! The `groupforward` command line: `run`, `replay`, `model-check`, `sim`, `demo`.
+
+mod sim_cli;
 
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -83,22 +85,21 @@ enum Command {
         #[arg(long)]
         onnxruntime: Option<PathBuf>,
     },
-    /// Render one frame of a scene file: RGB, depth (16-bit mm), instance and class ids (16-bit) as
-    /// PNGs, plus a side-by-side preview.
-    SimRender {
-        scene: PathBuf,
-        /// Frame of the trajectory.
-        #[arg(long, default_value_t = 0)]
-        frame: usize,
-        /// Output directory.
-        #[arg(long, default_value = "sim_render")]
-        out: PathBuf,
+    /// The simulator: render a scene, record a bag, write a training dataset or a benchmark set.
+    Sim {
+        #[command(subcommand)]
+        command: sim_cli::SimCommand,
     },
-    /// End-to-end demo in one process: simulated camera → node → status and services.
+    /// End-to-end demo in one process: the simulator records a scene as a bag, the bag is
+    /// replayed over an embedded zenoh peer into the node, and the node is queried.
     Demo {
-        /// Frames the simulated camera publishes.
-        #[arg(long, default_value_t = 30)]
-        frames: u64,
+        /// A scene file (TOML) or a procedural scene `<split>:<index>` (default: the built-in
+        /// `two_chairs` scene).
+        #[arg(long)]
+        scene: Option<String>,
+        /// Replay speed factor of the recorded bag.
+        #[arg(long, default_value_t = 2.0)]
+        rate: f64,
     },
 }
 
@@ -106,7 +107,7 @@ fn main() -> Result<()> {
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info,zenoh=warn")),
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info,zenoh=warn,ort=warn")),
         )
         .with_writer(std::io::stderr)
         .init();
@@ -187,12 +188,15 @@ fn main() -> Result<()> {
                 library.display()
             );
         }
-        Command::SimRender { scene, frame, out } => sim_render(&scene, frame, &out)?,
-        Command::Demo { frames } => {
-            let options = groupforward::demo::DemoOptions {
-                frames,
+        Command::Sim { command } => sim_cli::run(command)?,
+        Command::Demo { scene, rate } => {
+            let mut options = groupforward::demo::DemoOptions {
+                rate,
                 ..Default::default()
             };
+            if let Some(spec) = scene {
+                options.scene = sim_cli::load_scene(&spec)?;
+            }
             let report = groupforward::demo::run_demo(&options).context("running the demo")?;
             print_report(&report);
         }
@@ -200,73 +204,17 @@ fn main() -> Result<()> {
     Ok(())
 }
 
-fn sim_render(scene_path: &std::path::Path, frame: usize, out: &std::path::Path) -> Result<()> {
-    use groupforward_sim::scene::{camera_pose, pinhole, SceneFile};
-    let file = SceneFile::load(scene_path)?;
-    let scene = file.build()?;
-    let poses = file.robot_poses()?;
-    let pose = poses
-        .get(frame)
-        .with_context(|| format!("the trajectory has {} frames", poses.len()))?;
-    std::fs::create_dir_all(out)?;
-    for camera in &file.cameras {
-        let (rotation, position) = camera_pose(camera, pose);
-        let view = groupforward_sim::render::render(&scene, &pinhole(camera), rotation, position);
-        let (w, h) = (view.width, view.height);
-        let rgb = image::RgbImage::from_raw(w, h, view.rgb.clone()).context("rgb size")?;
-        let millimetres: Vec<u16> = view
-            .depth
-            .iter()
-            .map(|d| (d * 1000.0).round().clamp(0.0, 65535.0) as u16)
-            .collect();
-        let depth = image::ImageBuffer::<image::Luma<u16>, _>::from_raw(w, h, millimetres)
-            .context("depth size")?;
-        let instance =
-            image::ImageBuffer::<image::Luma<u16>, _>::from_raw(w, h, view.instance.clone())
-                .context("instance size")?;
-        let class = image::ImageBuffer::<image::Luma<u16>, _>::from_raw(w, h, view.class.clone())
-            .context("class size")?;
-        let stem = format!("{}_{frame:04}_{}", file.name, camera.name);
-        rgb.save(out.join(format!("{stem}_rgb.png")))?;
-        depth.save(out.join(format!("{stem}_depth_mm.png")))?;
-        instance.save(out.join(format!("{stem}_instance.png")))?;
-        class.save(out.join(format!("{stem}_class.png")))?;
-        // Preview: RGB | depth (near bright) | instances in distinct colours.
-        let max_depth = view.depth.iter().copied().fold(0.0f32, f32::max).max(1e-3);
-        let mut preview = image::RgbImage::new(3 * w, h);
-        for y in 0..h {
-            for x in 0..w {
-                let i = (y * w + x) as usize;
-                preview.put_pixel(x, y, *rgb.get_pixel(x, y));
-                let d = (255.0 * (1.0 - view.depth[i] / max_depth)) as u8;
-                preview.put_pixel(w + x, y, image::Rgb([d, d, d]));
-                let id = u32::from(view.instance[i]);
-                let color = if id == 0 {
-                    [0, 0, 0]
-                } else {
-                    [
-                        (id * 97 % 200 + 55) as u8,
-                        (id * 53 % 200 + 55) as u8,
-                        (id * 151 % 200 + 55) as u8,
-                    ]
-                };
-                preview.put_pixel(2 * w + x, y, image::Rgb(color));
-            }
-        }
-        preview.save(out.join(format!("{stem}_preview.png")))?;
-        println!(
-            "wrote {}/{stem}_{{rgb,depth_mm,instance,class,preview}}.png",
-            out.display()
-        );
-    }
-    Ok(())
-}
-
 fn print_report(report: &groupforward::demo::DemoReport) {
-    println!("groupforward demo: simulated camera -> node over an embedded zenoh peer");
     println!(
-        "  published: {} frames (rgb8 + 32FC1 depth + CameraInfo + TF), {} malformed messages",
-        report.frames_published, report.malformed_published
+        "groupforward demo: sim scene -> rosbag2 bag -> replay over an embedded zenoh peer -> node"
+    );
+    println!(
+        "  scene `{}`: recorded {} frames ({} dropped), {} messages incl. /gt/... ground truth; replayed {}",
+        report.scene,
+        report.recorded.frames,
+        report.recorded.dropped,
+        report.recorded.messages,
+        report.replayed_messages
     );
     for camera in &report.status.cameras {
         println!(
@@ -275,8 +223,8 @@ fn print_report(report: &groupforward::demo::DemoReport) {
         );
     }
     println!(
-        "  tf: {} transforms accepted, {} rejected",
-        report.status.tf_received, report.status.tf_rejected
+        "  tf: {} transforms accepted, {} rejected; {} malformed messages published on purpose",
+        report.status.tf_received, report.status.tf_rejected, report.malformed_published
     );
     for rejection in &report.status.rejections {
         println!("  rejected {:>3} x {}", rejection.count, rejection.reason);
@@ -285,6 +233,20 @@ fn print_report(report: &groupforward::demo::DemoReport) {
         "  list_instances service answered: {} instances (grouping is not built yet)",
         report.instances
     );
+    println!("  ground truth ({} objects):", report.objects.len());
+    for (id, class, p) in &report.objects {
+        println!(
+            "    #{id:<3} {class:<12} at ({:.2}, {:.2}, {:.2})",
+            p[0], p[1], p[2]
+        );
+    }
+    println!("  referring expressions generated from ground truth (one per relation type):");
+    for e in &report.expressions {
+        let view = e.view.map_or(String::new(), |v| {
+            format!("  [seen from frame {}]", v.frame)
+        });
+        println!("    {:<48} -> {:?}{view}", e.text, e.targets);
+    }
     match &report.vocabulary {
         Ok(matches) => {
             println!("  open vocabulary (all-MiniLM-L6-v2 int8 via ONNX Runtime), phrase -> sim class by name, description or affordance:");

@@ -5,7 +5,6 @@
 use std::collections::BTreeMap;
 use std::io::{Seek, Write};
 
-use groupforward_msgs::idl::EMBEDDED;
 use groupforward_msgs::{cdr, RosMessage};
 
 #[derive(Debug, thiserror::Error)]
@@ -106,7 +105,11 @@ impl<W: Write + Seek> std::fmt::Debug for BagWriter<W> {
 impl<W: Write + Seek> BagWriter<W> {
     pub fn new(sink: W) -> Result<Self> {
         Ok(Self {
-            writer: mcap::Writer::new(sink)?,
+            // rosbag2 readers (ros2 bag, rosbags) insist on the "ros2" profile.
+            writer: mcap::WriteOptions::new()
+                .profile("ros2")
+                .library(concat!("groupforward-sim ", env!("CARGO_PKG_VERSION")))
+                .create(sink)?,
             topics: BTreeMap::new(),
             qos: BTreeMap::new(),
             sequence: 0,
@@ -126,15 +129,11 @@ impl<W: Write + Seek> BagWriter<W> {
             record.count += 1;
             return Ok(record.channel);
         }
-        let (_, _, _, text) = EMBEDDED
-            .iter()
-            .find(|(kind, pkg, name, _)| {
-                *kind == "msg" && format!("{pkg}/msg/{name}") == T::TYPE_NAME
-            })
-            .ok_or(BagError::UnknownType(T::TYPE_NAME))?;
+        let definition = groupforward_msgs::idl::message_definition(T::TYPE_NAME)
+            .map_err(|_| BagError::UnknownType(T::TYPE_NAME))?;
         let schema = self
             .writer
-            .add_schema(T::TYPE_NAME, "ros2msg", text.as_bytes())?;
+            .add_schema(T::TYPE_NAME, "ros2msg", definition.as_bytes())?;
         let hash = T::type_hash().map_err(|e| BagError::Hash(T::TYPE_NAME, e))?;
         let qos = self.qos.get(topic).copied().unwrap_or_default();
         let metadata = BTreeMap::from([

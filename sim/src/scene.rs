@@ -144,7 +144,22 @@ const CONTACT: f64 = 1e-6;
 /// Clearance the robot keeps from walls and from objects standing on the floor (metres).
 pub const ROBOT_CLEARANCE: f64 = 0.35;
 
+/// Example scenes built into the binary (the files under `sim/scenes/`), by name.
+pub const BUILTIN: &[(&str, &str)] = &[
+    ("two_chairs", include_str!("../scenes/two_chairs.toml")),
+    (
+        "office_effects",
+        include_str!("../scenes/office_effects.toml"),
+    ),
+];
+
 impl SceneFile {
+    /// A built-in example scene by name.
+    pub fn builtin(name: &str) -> Option<Self> {
+        let (_, text) = BUILTIN.iter().find(|(n, _)| *n == name)?;
+        toml::from_str(text).ok()
+    }
+
     pub fn load(path: &Path) -> Result<Self> {
         let read = |reason: String| SceneError::Read {
             path: path.display().to_string(),
@@ -420,6 +435,15 @@ mod tests {
 
     fn scenes_dir() -> std::path::PathBuf {
         Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes")
+    }
+
+    #[test]
+    fn builtin_scenes_are_the_example_files() {
+        for (name, _) in BUILTIN {
+            let builtin = SceneFile::builtin(name).unwrap();
+            let file = SceneFile::load(&scenes_dir().join(format!("{name}.toml"))).unwrap();
+            assert_eq!(builtin, file);
+        }
     }
 
     #[test]
