@@ -214,7 +214,7 @@ fn benchmark(split: Split, first_index: u64, scenes: u64, out: &Path) -> Result<
         path.display()
     );
     for (relation, count) in counts {
-        println!("  {relation:<12?} {count:>5}");
+        println!("  {:<12} {count:>5}", format!("{relation:?}"));
     }
     Ok(())
 }

@@ -1,5 +1,5 @@
 //! Training datasets on disk: one directory per procedural scene with `views` overlapping views
-//! along the robot's random walk.
+//! along the robot's random walk (the stretch of the walk that sees the most objects).
 //!
 //! ```text
 //! <out>/dataset.json                 split, resolution, views, class table, statistics
@@ -163,9 +163,10 @@ fn save_png(
     Ok(std::fs::metadata(path).map_err(io(path))?.len())
 }
 
-/// PNG stores 16-bit samples big-endian.
-fn be16(values: impl Iterator<Item = u16>) -> Vec<u8> {
-    values.flat_map(u16::to_be_bytes).collect()
+/// 16-bit samples as `image`'s encoders take them: native byte order (PNG's big-endian order is
+/// the encoder's business).
+fn ne16(values: impl Iterator<Item = u16>) -> Vec<u8> {
+    values.flat_map(u16::to_ne_bytes).collect()
 }
 
 fn write_view(dir: &Path, index: usize, frame: usize, view: &SimView) -> Result<(ViewEntry, u64)> {
@@ -178,7 +179,7 @@ fn write_view(dir: &Path, index: usize, frame: usize, view: &SimView) -> Result<
         view.sensor_rgb(),
         image::ExtendedColorType::Rgb8,
     )?;
-    let millimetres = be16(view.sensor_depth().iter().map(|z| {
+    let millimetres = ne16(view.sensor_depth().iter().map(|z| {
         if z.is_finite() {
             (z * 1000.0).round().clamp(0.0, 65535.0) as u16
         } else {
@@ -192,7 +193,7 @@ fn write_view(dir: &Path, index: usize, frame: usize, view: &SimView) -> Result<
         &millimetres,
         image::ExtendedColorType::L16,
     )?;
-    let instance = be16(view.truth.instance.iter().copied());
+    let instance = ne16(view.truth.instance.iter().copied());
     bytes += save_png(
         &dir.join(name("instance")),
         w,
@@ -200,7 +201,7 @@ fn write_view(dir: &Path, index: usize, frame: usize, view: &SimView) -> Result<
         &instance,
         image::ExtendedColorType::L16,
     )?;
-    let class = be16(view.truth.class.iter().copied());
+    let class = ne16(view.truth.class.iter().copied());
     bytes += save_png(
         &dir.join(name("class")),
         w,
@@ -229,17 +230,42 @@ fn write_view(dir: &Path, index: usize, frame: usize, view: &SimView) -> Result<
     Ok((entry, bytes))
 }
 
+/// Window starts considered along the walk (every `frames_between_views` frames).
+const CANDIDATE_STARTS: usize = 8;
+
+/// The window start whose views see the most object pixels (judged on 32×24 renders), so samples
+/// show objects rather than bare walls.
+fn busiest_window_start(sim: &Simulation, options: &DatasetOptions) -> usize {
+    let camera = &sim.file.cameras[0];
+    let probe = crate::render::Pinhole::from_fov(32, 24, camera.fov_x_deg.to_radians());
+    let score = |start: usize| -> usize {
+        (0..options.views)
+            .map(|v| {
+                let pose = sim.poses[start + v * options.frames_between_views];
+                let (rotation, position) = crate::scene::camera_pose(camera, &pose);
+                let view = crate::render::render(&sim.scene, &probe, rotation, position);
+                view.instance.iter().filter(|i| **i != 0).count()
+            })
+            .sum()
+    };
+    (0..CANDIDATE_STARTS)
+        .map(|k| k * options.frames_between_views)
+        .max_by_key(|&start| (score(start), std::cmp::Reverse(start)))
+        .unwrap_or(0)
+}
+
 /// One sample: returns (scene name, bytes written, object pixels, pixels).
 fn write_sample(
     out: &Path,
     options: &DatasetOptions,
     index: u64,
 ) -> Result<(String, u64, usize, usize)> {
+    let window = (options.views - 1) * options.frames_between_views + 1;
     let procedural = ProceduralOptions {
         width: options.width,
         height: options.height,
         fov_x_deg: options.fov_x_deg,
-        frames: (options.views - 1) * options.frames_between_views + 1,
+        frames: window + CANDIDATE_STARTS * options.frames_between_views,
         rate_hz: 10.0,
     };
     let file = generate_with(options.split, index, &procedural)
@@ -249,11 +275,12 @@ fn write_sample(
         Simulation::new(file).map_err(|e| DatasetError::Scene(name.clone(), e.to_string()))?;
     let dir = out.join(&name);
     std::fs::create_dir_all(&dir).map_err(io(&dir))?;
+    let start = busiest_window_start(&sim, options);
     let classes = library::classes();
     let mut views = Vec::new();
     let (mut bytes, mut object_pixels, mut pixels) = (0, 0, 0);
     for v in 0..options.views {
-        let frame_index = v * options.frames_between_views;
+        let frame_index = start + v * options.frames_between_views;
         let frame = sim.frame(frame_index);
         let view = &frame.views[0];
         object_pixels += view.truth.instance.iter().filter(|i| **i != 0).count();

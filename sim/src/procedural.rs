@@ -337,21 +337,41 @@ pub fn generate_with(split: Split, index: u64, options: &ProceduralOptions) -> O
         }
     }
 
-    // The robot: a random walk from a free spot, facing the room's centre.
-    let scene = file.build().ok()?;
-    let mut start = None;
-    for _ in 0..200 {
-        let p = glam::DVec3::new(
-            rng.random_range(0.0..size[0]),
-            rng.random_range(0.0..size[1]),
-            0.0,
-        );
-        if is_free(&scene, p) {
-            start = Some(p);
-            break;
+    // The robot: a random walk from a free spot, facing the room's centre. A room too full to
+    // stand in loses floor objects (that carry nothing) until there is room.
+    let start = loop {
+        let scene = file.build().ok()?;
+        let random = (0..200).find_map(|_| {
+            let p = glam::DVec3::new(
+                rng.random_range(0.0..size[0]),
+                rng.random_range(0.0..size[1]),
+                0.0,
+            );
+            is_free(&scene, p).then_some(p)
+        });
+        let grid = || {
+            (0..(size[0] * 10.0) as usize)
+                .flat_map(|i| (0..(size[1] * 10.0) as usize).map(move |j| (i, j)))
+                .map(|(i, j)| glam::DVec3::new(i as f64 / 10.0, j as f64 / 10.0, 0.0))
+                .find(|p| is_free(&scene, *p))
+        };
+        if let Some(p) = random.or_else(grid) {
+            break p;
         }
-    }
-    let start = start.unwrap_or(glam::DVec3::new(size[0] / 2.0, size[1] / 2.0, 0.0));
+        let carried: Vec<usize> = file.objects.iter().filter_map(|o| o.on).collect();
+        let removable = (0..file.objects.len())
+            .rev()
+            .find(|&i| file.objects[i].on.is_none() && !carried.contains(&i))?;
+        file.objects.remove(removable);
+        // Indices of supports after the removed object shift down by one.
+        for object in &mut file.objects {
+            if let Some(on) = object.on.as_mut() {
+                if *on > removable {
+                    *on -= 1;
+                }
+            }
+        }
+    };
     let to_center = (size[1] / 2.0 - start.y).atan2(size[0] / 2.0 - start.x);
     file.trajectory = Trajectory::RandomWalk {
         start: [start.x, start.y, to_center.to_degrees()],

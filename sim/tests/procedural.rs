@@ -117,6 +117,17 @@ fn the_random_walk_stays_in_free_space_and_sees_objects() {
 }
 
 #[test]
+fn every_scene_of_a_large_sample_builds_with_a_walkable_trajectory() {
+    for split in Split::ALL {
+        for index in 0..400 {
+            let file = generate(split, index).unwrap();
+            let poses = file.robot_poses();
+            assert!(poses.is_ok(), "{}: {:?}", file.name, poses.err());
+        }
+    }
+}
+
+#[test]
 fn procedural_scenes_round_trip_through_toml() {
     let file = generate(Split::Train, 11).unwrap();
     let text = file.to_toml().unwrap();
