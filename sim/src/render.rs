@@ -1,6 +1,7 @@
 //! CPU ray casting of analytic scenes with exact ground truth: RGB (Lambertian + ambient, with floor
-//! texture), metric depth along the optical axis, instance ids and class ids. Cameras use the
-//! REP-103 optical frame (z forward, x right, y down); poses are `world_from_camera`.
+//! tiles and value-noise texture on objects and walls), metric depth along the optical axis,
+//! instance ids and class ids. Cameras use the REP-103 optical frame (z forward, x right, y down);
+//! poses are `world_from_camera`.
 
 use glam::{DQuat, DVec3};
 use rayon::prelude::*;
@@ -298,6 +299,18 @@ fn cast(scene: &Scene, origin: DVec3, dir: DVec3) -> Hit {
     hit
 }
 
+/// Value noise in [-1, 1], constant on cubes of `cell` metres: texture for photometric losses
+/// and appearance features.
+fn cell_noise(p: DVec3, cell: f64) -> f32 {
+    let q = (p / cell).floor();
+    let mut h = (q.x as i64 as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
+        ^ (q.y as i64 as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F)
+        ^ (q.z as i64 as u64).wrapping_mul(0x1656_67B1_9E37_79F9);
+    h = (h ^ (h >> 29)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    h ^= h >> 32;
+    (h & 0xFFFF) as f32 / 32767.5 - 1.0
+}
+
 const LIGHT: DVec3 = DVec3::new(0.32, 0.48, 0.82);
 const AMBIENT: f64 = 0.35;
 
@@ -349,7 +362,9 @@ pub fn render_distorted(
                 let (base, id, class_id) = match hit.object {
                     Some(k) => {
                         let o = &scene.objects[k];
-                        (o.color, o.instance_id, o.class_id)
+                        // Texture fixed to the object (moves with it, equal on identical objects).
+                        let shade = 1.0 + 0.08 * cell_noise(o.to_local(point), 0.05);
+                        (o.color.map(|c| c * shade), o.instance_id, o.class_id)
                     }
                     None if hit.normal.z > 0.5 => {
                         // Floor tiles of 0.5 m give texture for photometric losses.
@@ -358,7 +373,10 @@ pub fn render_distorted(
                         let shade = if tile < 1.0 { 1.0 } else { 0.85 };
                         (scene.floor_color.map(|c| c * shade), 0, 0)
                     }
-                    None => (scene.wall_color, 0, 0),
+                    None => {
+                        let shade = 1.0 + 0.03 * cell_noise(point, 0.2);
+                        (scene.wall_color.map(|c| c * shade), 0, 0)
+                    }
                 };
                 let lambert = AMBIENT + (1.0 - AMBIENT) * hit.normal.dot(light).max(0.0);
                 for c in base {
