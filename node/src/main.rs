@@ -1,5 +1,6 @@
 //! The `groupforward` command line: `run`, `replay`, `model-check`, `sim`, `demo`.
 
+mod bench_cli;
 mod sim_cli;
 
 use std::path::PathBuf;
@@ -89,6 +90,11 @@ enum Command {
     Sim {
         #[command(subcommand)]
         command: sim_cli::SimCommand,
+    },
+    /// Measurements written as CSV and Markdown (grouping against Python hdbscan, ...).
+    Bench {
+        #[command(subcommand)]
+        command: bench_cli::BenchCommand,
     },
     /// End-to-end demo in one process: the simulator records a scene as a bag, the bag is
     /// replayed over an embedded zenoh peer into the node, and the node is queried.
@@ -189,6 +195,7 @@ fn main() -> Result<()> {
             );
         }
         Command::Sim { command } => sim_cli::run(command)?,
+        Command::Bench { command } => bench_cli::run(command)?,
         Command::Demo { scene, rate } => {
             let mut options = groupforward::demo::DemoOptions {
                 rate,

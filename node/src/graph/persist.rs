@@ -1,0 +1,313 @@
+//! Map snapshots: a versioned binary file, written atomically.
+//!
+//! ```text
+//! magic "GFMAP\r\n\x1a" | u32 LE version | u64 LE header length | header (JSON: instances,
+//! keyframes, counters) | u64 LE payload length | payload (f32 LE Gaussian attributes, instance
+//! by instance) | SHA-256 of everything before it
+//! ```
+//!
+//! Saving writes a temporary file next to the target, syncs it and renames it over the target,
+//! so a crash mid-write leaves the previous snapshot intact. Loading checks magic, version,
+//! lengths and checksum before building anything, so a corrupt or newer file is a clear error
+//! and the running map is never touched.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use glam::{Quat, Vec3};
+use serde::{Deserialize, Serialize};
+use sha2::{Digest, Sha256};
+
+use super::{FusionParams, Instance, Keyframe, SceneMap};
+use crate::recon::camera::{Camera, PlumbBob};
+use crate::recon::gaussians::Gaussians;
+use crate::recon::Rigid;
+
+pub const MAGIC: &[u8; 8] = b"GFMAP\r\n\x1a";
+pub const VERSION: u32 = 1;
+
+#[derive(Debug, thiserror::Error)]
+pub enum PersistError {
+    #[error("{path}: {source}")]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("not a groupforward map (bad magic)")]
+    NotAMap,
+    #[error("map format version {found} is newer than this build reads ({supported})")]
+    NewerVersion { found: u32, supported: u32 },
+    #[error("map file is corrupt: {0}")]
+    Corrupt(String),
+}
+
+#[derive(Debug, Serialize, Deserialize)]
+struct Header {
+    next_id: u64,
+    instances: Vec<InstanceHeader>,
+    keyframes: Vec<KeyframeRecord>,
+}
+
+#[derive(Debug, Serialize, Deserialize)]
+struct InstanceHeader {
+    id: String,
+    prototype: Vec<f32>,
+    prototype_weight: f64,
+    confidence: f32,
+    observations: u32,
+    first_seen_nanos: i64,
+    last_seen_nanos: i64,
+    gaussians: usize,
+    embedding_dim: usize,
+    extra_dim: usize,
+}
+
+#[derive(Debug, Serialize, Deserialize)]
+struct KeyframeRecord {
+    stamp_nanos: i64,
+    width: u32,
+    height: u32,
+    /// fx, fy, cx, cy.
+    intrinsics: [f64; 4],
+    /// k1, k2, p1, p2, k3.
+    distortion: [f64; 5],
+    /// x, y, z, w.
+    rotation: [f64; 4],
+    translation: [f64; 3],
+}
+
+fn floats_per_gaussian(embedding_dim: usize, extra_dim: usize) -> usize {
+    3 + 1 + 3 + 4 + 3 + embedding_dim + extra_dim
+}
+
+/// Serialise `map` to bytes.
+pub fn to_bytes(map: &SceneMap) -> Vec<u8> {
+    let header = Header {
+        next_id: map.next_id,
+        instances: map
+            .instances
+            .iter()
+            .map(|i| InstanceHeader {
+                id: i.id.clone(),
+                prototype: i.prototype.clone(),
+                prototype_weight: i.prototype_weight,
+                confidence: i.confidence,
+                observations: i.observations,
+                first_seen_nanos: i.first_seen_nanos,
+                last_seen_nanos: i.last_seen_nanos,
+                gaussians: i.gaussians.len(),
+                embedding_dim: i.gaussians.embedding_dim,
+                extra_dim: i.gaussians.extra_dim,
+            })
+            .collect(),
+        keyframes: map
+            .keyframes
+            .iter()
+            .map(|k| KeyframeRecord {
+                stamp_nanos: k.stamp_nanos,
+                width: k.camera.width,
+                height: k.camera.height,
+                intrinsics: [k.camera.fx, k.camera.fy, k.camera.cx, k.camera.cy],
+                distortion: [
+                    k.camera.distortion.k1,
+                    k.camera.distortion.k2,
+                    k.camera.distortion.p1,
+                    k.camera.distortion.p2,
+                    k.camera.distortion.k3,
+                ],
+                rotation: k.world_from_camera.rotation.to_array(),
+                translation: k.world_from_camera.translation.to_array(),
+            })
+            .collect(),
+    };
+    // Serialising plain structs of numbers and strings cannot fail.
+    let json = serde_json::to_vec(&header).unwrap_or_default();
+    let mut payload = Vec::new();
+    for instance in &map.instances {
+        let g = &instance.gaussians;
+        let mut put = |v: f32| payload.extend_from_slice(&v.to_le_bytes());
+        for i in 0..g.len() {
+            g.means[i].to_array().into_iter().for_each(&mut put);
+            put(g.opacities[i]);
+            g.scales[i].to_array().into_iter().for_each(&mut put);
+            g.rotations[i].to_array().into_iter().for_each(&mut put);
+            g.colors[i].to_array().into_iter().for_each(&mut put);
+            g.embedding(i).iter().copied().for_each(&mut put);
+            g.extra[i * g.extra_dim..(i + 1) * g.extra_dim]
+                .iter()
+                .copied()
+                .for_each(&mut put);
+        }
+    }
+    let mut out = Vec::with_capacity(8 + 4 + 16 + json.len() + payload.len() + 32);
+    out.extend_from_slice(MAGIC);
+    out.extend_from_slice(&VERSION.to_le_bytes());
+    out.extend_from_slice(&(json.len() as u64).to_le_bytes());
+    out.extend_from_slice(&json);
+    out.extend_from_slice(&(payload.len() as u64).to_le_bytes());
+    out.extend_from_slice(&payload);
+    let digest = Sha256::digest(&out);
+    out.extend_from_slice(&digest);
+    out
+}
+
+fn take<'a>(
+    bytes: &'a [u8],
+    at: &mut usize,
+    n: usize,
+    what: &str,
+) -> Result<&'a [u8], PersistError> {
+    let end = at
+        .checked_add(n)
+        .filter(|&end| end <= bytes.len())
+        .ok_or_else(|| PersistError::Corrupt(format!("truncated in the {what}")))?;
+    let out = &bytes[*at..end];
+    *at = end;
+    Ok(out)
+}
+
+fn u64_at(bytes: &[u8], at: &mut usize, what: &str) -> Result<u64, PersistError> {
+    let raw = take(bytes, at, 8, what)?;
+    Ok(u64::from_le_bytes(raw.try_into().unwrap_or([0; 8])))
+}
+
+/// Parse a snapshot; `params` are the running configuration's (not stored in the file).
+pub fn from_bytes(bytes: &[u8], params: FusionParams) -> Result<SceneMap, PersistError> {
+    if bytes.len() < 12 || &bytes[..8] != MAGIC {
+        return Err(PersistError::NotAMap);
+    }
+    let version = u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]);
+    if version > VERSION {
+        return Err(PersistError::NewerVersion {
+            found: version,
+            supported: VERSION,
+        });
+    }
+    if bytes.len() < 12 + 32 {
+        return Err(PersistError::Corrupt("truncated".into()));
+    }
+    let (body, digest) = bytes.split_at(bytes.len() - 32);
+    if Sha256::digest(body).as_slice() != digest {
+        return Err(PersistError::Corrupt("checksum mismatch".into()));
+    }
+    let mut at = 12;
+    let header_len = u64_at(body, &mut at, "header length")? as usize;
+    let header: Header = serde_json::from_slice(take(body, &mut at, header_len, "header")?)
+        .map_err(|e| PersistError::Corrupt(format!("header: {e}")))?;
+    let payload_len = u64_at(body, &mut at, "payload length")? as usize;
+    let payload = take(body, &mut at, payload_len, "payload")?;
+    if at != body.len() {
+        return Err(PersistError::Corrupt("trailing bytes".into()));
+    }
+    let expected: usize = header
+        .instances
+        .iter()
+        .map(|i| i.gaussians * floats_per_gaussian(i.embedding_dim, i.extra_dim) * 4)
+        .sum();
+    if expected != payload.len() {
+        return Err(PersistError::Corrupt(format!(
+            "payload holds {} bytes, the header describes {expected}",
+            payload.len()
+        )));
+    }
+    let mut floats = payload
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]));
+    let mut next = |n: usize| -> Vec<f32> { floats.by_ref().take(n).collect() };
+    let mut instances = Vec::with_capacity(header.instances.len());
+    for h in header.instances {
+        let mut g = Gaussians::with_dims(h.embedding_dim, h.extra_dim);
+        for _ in 0..h.gaussians {
+            let mean = next(3);
+            let opacity = next(1);
+            let scale = next(3);
+            let rotation = next(4);
+            let color = next(3);
+            let embedding = next(h.embedding_dim);
+            let extra = next(h.extra_dim);
+            g.push(
+                Vec3::from_slice(&mean),
+                opacity[0],
+                Vec3::from_slice(&scale),
+                Quat::from_slice(&rotation),
+                Vec3::from_slice(&color),
+                &embedding,
+                &extra,
+            );
+        }
+        g.validate()
+            .map_err(|e| PersistError::Corrupt(format!("instance {}: {e}", h.id)))?;
+        instances.push(Instance {
+            id: h.id,
+            gaussians: g,
+            prototype: h.prototype,
+            prototype_weight: h.prototype_weight,
+            confidence: h.confidence,
+            observations: h.observations,
+            first_seen_nanos: h.first_seen_nanos,
+            last_seen_nanos: h.last_seen_nanos,
+        });
+    }
+    let keyframes = header
+        .keyframes
+        .into_iter()
+        .map(|k| {
+            let [fx, fy, cx, cy] = k.intrinsics;
+            let [k1, k2, p1, p2, k3] = k.distortion;
+            let camera = Camera::pinhole(k.width, k.height, fx, fy, cx, cy)
+                .map_err(|e| PersistError::Corrupt(format!("keyframe camera: {e}")))?;
+            Ok(Keyframe {
+                stamp_nanos: k.stamp_nanos,
+                camera: Camera {
+                    distortion: PlumbBob { k1, k2, p1, p2, k3 },
+                    ..camera
+                },
+                world_from_camera: Rigid::new(
+                    glam::DQuat::from_array(k.rotation),
+                    glam::DVec3::from_array(k.translation),
+                ),
+            })
+        })
+        .collect::<Result<_, PersistError>>()?;
+    Ok(SceneMap {
+        instances,
+        keyframes,
+        next_id: header.next_id,
+        params,
+    })
+}
+
+fn io(path: &Path) -> impl FnOnce(std::io::Error) -> PersistError + '_ {
+    move |source| PersistError::Io {
+        path: path.to_owned(),
+        source,
+    }
+}
+
+/// Write `bytes` to `path` atomically through `sink`-style staging: a temp file in the same
+/// directory, synced, then renamed over `path`.
+pub fn write_atomically(path: &Path, bytes: &[u8]) -> Result<(), PersistError> {
+    let dir = path
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    let mut temp = tempfile::NamedTempFile::new_in(dir).map_err(io(dir))?;
+    temp.write_all(bytes).map_err(io(path))?;
+    temp.as_file().sync_all().map_err(io(path))?;
+    temp.persist(path).map_err(|e| PersistError::Io {
+        path: path.to_owned(),
+        source: e.error,
+    })?;
+    Ok(())
+}
+
+/// Save `map` to `path` atomically.
+pub fn save(map: &SceneMap, path: &Path) -> Result<(), PersistError> {
+    write_atomically(path, &to_bytes(map))
+}
+
+/// Load a snapshot from `path`.
+pub fn load(path: &Path, params: FusionParams) -> Result<SceneMap, PersistError> {
+    let bytes = std::fs::read(path).map_err(io(path))?;
+    from_bytes(&bytes, params)
+}

@@ -1,0 +1,165 @@
+//! Instance grouping (DESIGN §5.4): the embeddings of all context views are clustered jointly
+//! with HDBSCAN on a subsample, and every embedding is then assigned to a cluster by the softmax
+//! over its distances to the cluster centroids, p_k = softmax_k(−‖e − ē_k‖ / τ), with a noise
+//! threshold on the distance. Each embedding belongs to a pixel-aligned Gaussian, so a cluster is
+//! a 3D instance consistent across views.
+
+pub mod blobs;
+pub mod hdbscan;
+
+use hdbscan::{Clustering, HdbscanError, HdbscanParams};
+
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum GroupError {
+    #[error(transparent)]
+    Hdbscan(#[from] HdbscanError),
+    #[error("temperature must be finite and positive, got {0}")]
+    Temperature(f32),
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GroupingParams {
+    pub hdbscan: HdbscanParams,
+    /// HDBSCAN runs on at most this many embeddings (an even stride through all of them).
+    pub max_cluster_points: usize,
+    /// τ of the assignment softmax.
+    pub temperature: f32,
+    /// Embeddings farther than this from every centroid (ℓ2, on unit vectors) are noise.
+    pub noise_distance: f32,
+}
+
+impl Default for GroupingParams {
+    fn default() -> Self {
+        Self {
+            hdbscan: HdbscanParams {
+                min_cluster_size: 60,
+                min_samples: 10,
+                allow_single_cluster: true,
+            },
+            max_cluster_points: 20_000,
+            temperature: 0.05,
+            // Half the push margin (m = 1) the embeddings are trained with.
+            noise_distance: 0.5,
+        }
+    }
+}
+
+/// The instances of one window.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Grouping {
+    /// Per embedding: instance index, or -1 for noise.
+    pub labels: Vec<i32>,
+    /// Unit-length centroid per instance (`dims` values each).
+    pub centroids: Vec<Vec<f32>>,
+    pub dims: usize,
+}
+
+/// ℓ2-normalise rows in place; rows shorter than 1e-12 stay zero (they are noise later).
+pub fn normalize_rows(values: &mut [f32], dims: usize) {
+    for row in values.chunks_mut(dims) {
+        let norm = row.iter().map(|v| v * v).sum::<f32>().sqrt();
+        if norm > 1e-12 {
+            row.iter_mut().for_each(|v| *v /= norm);
+        } else {
+            row.iter_mut().for_each(|v| *v = 0.0);
+        }
+    }
+}
+
+/// Assignment probabilities of one embedding to `centroids`, numerically stable for any τ > 0
+/// (the smallest distance is subtracted before exponentiating). Writes into `out`.
+pub fn assignment_probabilities(
+    embedding: &[f32],
+    centroids: &[Vec<f32>],
+    temperature: f32,
+    out: &mut Vec<f32>,
+) {
+    out.clear();
+    let distances: Vec<f32> = centroids
+        .iter()
+        .map(|c| {
+            c.iter()
+                .zip(embedding)
+                .map(|(a, b)| (a - b) * (a - b))
+                .sum::<f32>()
+                .sqrt()
+        })
+        .collect();
+    let nearest = distances.iter().copied().fold(f32::INFINITY, f32::min);
+    let mut sum = 0.0f32;
+    for d in &distances {
+        let p = (-(d - nearest) / temperature).exp();
+        sum += p;
+        out.push(p);
+    }
+    if sum > 0.0 && sum.is_finite() {
+        out.iter_mut().for_each(|p| *p /= sum);
+    }
+}
+
+/// Group `embeddings` (row-major, `dims` per row; normalised here).
+pub fn group(
+    embeddings: &[f32],
+    dims: usize,
+    params: &GroupingParams,
+) -> Result<Grouping, GroupError> {
+    if !(params.temperature.is_finite() && params.temperature > 0.0) {
+        return Err(GroupError::Temperature(params.temperature));
+    }
+    if dims == 0 || embeddings.len() % dims != 0 {
+        return Err(HdbscanError::Shape {
+            len: embeddings.len(),
+            dims,
+        }
+        .into());
+    }
+    let mut unit = embeddings.to_vec();
+    normalize_rows(&mut unit, dims);
+    let n = unit.len() / dims;
+    let stride = n.div_ceil(params.max_cluster_points.max(1)).max(1);
+    let sample: Vec<usize> = (0..n).step_by(stride).collect();
+    let mut subset = Vec::with_capacity(sample.len() * dims);
+    for &i in &sample {
+        subset.extend_from_slice(&unit[i * dims..(i + 1) * dims]);
+    }
+    let Clustering { labels, n_clusters } = hdbscan::hdbscan(&subset, dims, &params.hdbscan)?;
+    let mut centroids = vec![vec![0.0f32; dims]; n_clusters];
+    for (row, &label) in subset.chunks(dims).zip(&labels) {
+        if let Ok(k) = usize::try_from(label) {
+            centroids[k].iter_mut().zip(row).for_each(|(c, v)| *c += v);
+        }
+    }
+    for c in &mut centroids {
+        normalize_rows(c, dims);
+    }
+    let mut probabilities = Vec::with_capacity(n_clusters);
+    let labels =
+        unit.chunks(dims)
+            .map(|row| {
+                if n_clusters == 0 {
+                    return -1;
+                }
+                assignment_probabilities(row, &centroids, params.temperature, &mut probabilities);
+                let (best, _) = probabilities.iter().enumerate().fold(
+                    (0, f32::NEG_INFINITY),
+                    |acc, (k, &p)| if p > acc.1 { (k, p) } else { acc },
+                );
+                let distance = centroids[best]
+                    .iter()
+                    .zip(row)
+                    .map(|(a, b)| (a - b) * (a - b))
+                    .sum::<f32>()
+                    .sqrt();
+                if distance <= params.noise_distance {
+                    best as i32
+                } else {
+                    -1
+                }
+            })
+            .collect();
+    Ok(Grouping {
+        labels,
+        centroids,
+        dims,
+    })
+}

@@ -1,0 +1,207 @@
+#![allow(clippy::unwrap_used)]
+//! Grouping: clusters recovered on synthetic embeddings, and every hard case (identical points,
+//! too few points, noise only, touching clusters, 1-D data, tiny temperatures, zero vectors) stays
+//! finite and meaningful.
+
+use groupforward::group::blobs::blobs;
+use groupforward::group::hdbscan::{hdbscan, HdbscanParams};
+use groupforward::group::{assignment_probabilities, group, GroupingParams};
+use groupforward::recon::metrics::adjusted_rand_index;
+
+fn ari(labels: &[i32], truth: &[u32]) -> f64 {
+    let mapped: Vec<u32> = labels.iter().map(|&l| (l + 1) as u32).collect();
+    adjusted_rand_index(&mapped, truth).unwrap()
+}
+
+fn params(min_cluster_size: usize, min_samples: usize) -> HdbscanParams {
+    HdbscanParams {
+        min_cluster_size,
+        min_samples,
+        allow_single_cluster: false,
+    }
+}
+
+#[test]
+fn separated_blobs_are_recovered() {
+    let (points, truth) = blobs(3000, 8, 6, 1.0, 1);
+    let result = hdbscan(&points, 8, &params(60, 10)).unwrap();
+    assert_eq!(result.n_clusters, 6);
+    let noise = result.labels.iter().filter(|l| **l < 0).count();
+    assert!(noise < 150, "{noise} noise points");
+    assert!(ari(&result.labels, &truth) > 0.95);
+}
+
+#[test]
+fn clustering_is_deterministic_across_thread_counts() {
+    let (points, _) = blobs(4000, 8, 10, 1.5, 2);
+    let run = |threads| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap()
+            .install(|| hdbscan(&points, 8, &params(40, 8)).unwrap())
+    };
+    let one = run(1);
+    assert_eq!(one, run(2));
+    assert_eq!(one, run(4));
+}
+
+#[test]
+fn all_identical_points_are_one_cluster_or_noise_never_nan() {
+    let points = vec![0.25f32; 200 * 8];
+    let strict = hdbscan(&points, 8, &params(20, 5)).unwrap();
+    assert_eq!(strict.n_clusters, 0);
+    assert!(strict.labels.iter().all(|l| *l == -1));
+    let single = hdbscan(
+        &points,
+        8,
+        &HdbscanParams {
+            allow_single_cluster: true,
+            ..params(20, 5)
+        },
+    )
+    .unwrap();
+    assert_eq!(single.n_clusters, 1);
+    assert!(single.labels.iter().all(|l| *l == 0));
+}
+
+#[test]
+fn fewer_points_than_min_cluster_size_are_noise() {
+    let (points, _) = blobs(30, 8, 1, 1.0, 3);
+    let result = hdbscan(&points, 8, &params(60, 10)).unwrap();
+    assert_eq!(result.labels, vec![-1; 30]);
+    assert!(hdbscan(&[], 8, &params(60, 10)).unwrap().labels.is_empty());
+    assert!(
+        hdbscan(&[1.0, 2.0, 3.0], 2, &params(60, 10)).is_err(),
+        "ragged rows"
+    );
+    assert!(hdbscan(&[f32::NAN; 8], 8, &params(60, 10)).is_err());
+}
+
+#[test]
+fn uniform_noise_yields_no_confident_clusters() {
+    // Scattered points with no density structure.
+    let (points, _) = blobs(500, 8, 500, 0.0, 4);
+    let result = hdbscan(&points, 8, &params(60, 10)).unwrap();
+    assert!(
+        result.n_clusters <= 1,
+        "{} clusters in noise",
+        result.n_clusters
+    );
+    assert!(result
+        .labels
+        .iter()
+        .all(|l| *l >= -1 && *l < result.n_clusters as i32));
+}
+
+#[test]
+fn two_touching_clusters_stay_two() {
+    // An 8-d unit Gaussian cloud has radius ≈ √8 ≈ 2.8: centres 6 apart, the clouds touch.
+    let mut points = Vec::new();
+    let mut truth = Vec::new();
+    let (a, _) = blobs(800, 8, 1, 1.0, 5);
+    let (b, _) = blobs(800, 8, 1, 1.0, 6);
+    let (ca, cb) = (mean(&a), mean(&b));
+    for (row_a, row_b) in a.chunks(8).zip(b.chunks(8)) {
+        points.extend(row_a.iter().zip(&ca).map(|(v, c)| v - c));
+        truth.push(0);
+        points.extend(
+            row_b
+                .iter()
+                .zip(&cb)
+                .enumerate()
+                .map(|(d, (v, c))| v - c + if d == 0 { 6.0 } else { 0.0 }),
+        );
+        truth.push(1);
+    }
+    let result = hdbscan(&points, 8, &params(60, 10)).unwrap();
+    assert_eq!(result.n_clusters, 2);
+    // Points in the contact zone may be noise (Python hdbscan leaves ~12% there); the rest split
+    // exactly along the truth.
+    let kept: Vec<usize> = (0..truth.len())
+        .filter(|&i| result.labels[i] >= 0)
+        .collect();
+    let noise = 1.0 - kept.len() as f64 / truth.len() as f64;
+    assert!(noise < 0.3, "{noise} noise");
+    let labels: Vec<i32> = kept.iter().map(|&i| result.labels[i]).collect();
+    let truth: Vec<u32> = kept.iter().map(|&i| truth[i]).collect();
+    assert!(ari(&labels, &truth) > 0.99, "{}", ari(&labels, &truth));
+}
+
+fn mean(points: &[f32]) -> Vec<f32> {
+    let n = (points.len() / 8) as f32;
+    (0..8)
+        .map(|d| points.chunks(8).map(|r| r[d]).sum::<f32>() / n)
+        .collect()
+}
+
+#[test]
+fn one_dimensional_data_in_eight_dimensions() {
+    // Two segments on one line, 1 apart, every other coordinate zero: a degenerate KD-tree.
+    let mut points = Vec::new();
+    let mut truth = Vec::new();
+    for i in 0..400 {
+        let (x, label) = if i % 2 == 0 {
+            (i as f32 * 0.001, 0)
+        } else {
+            (1.4 + i as f32 * 0.001, 1)
+        };
+        let mut row = [0.0f32; 8];
+        row[3] = x;
+        points.extend_from_slice(&row);
+        truth.push(label);
+    }
+    let result = hdbscan(&points, 8, &params(30, 5)).unwrap();
+    assert_eq!(result.n_clusters, 2);
+    assert!(ari(&result.labels, &truth) > 0.99);
+}
+
+#[test]
+fn tiny_temperatures_give_finite_one_hot_assignments() {
+    let centroids = vec![vec![1.0, 0.0], vec![0.0, 1.0]];
+    let mut p = Vec::new();
+    for tau in [1.0, 1e-3, 1e-6, 1e-30] {
+        assignment_probabilities(&[0.9, 0.1], &centroids, tau, &mut p);
+        assert!(p.iter().all(|v| v.is_finite()), "tau {tau}: {p:?}");
+        assert!((p.iter().sum::<f32>() - 1.0).abs() < 1e-5);
+        assert!(p[0] >= p[1]);
+    }
+    assert_eq!(p, vec![1.0, 0.0]);
+    // Equidistant: an even split at any temperature.
+    assignment_probabilities(&[0.5, 0.5], &centroids, 1e-6, &mut p);
+    assert!((p[0] - 0.5).abs() < 1e-6);
+}
+
+#[test]
+fn grouping_assigns_every_embedding_and_marks_zero_vectors_noise() {
+    // Unit-sphere clusters, as trained embeddings are.
+    let (mut points, truth) = blobs(6000, 8, 5, 0.3, 7);
+    for row in points.chunks_mut(8).take(10) {
+        row.iter_mut().for_each(|v| *v = 0.0);
+    }
+    let params = GroupingParams {
+        max_cluster_points: 2000,
+        ..GroupingParams::default()
+    };
+    let result = group(&points, 8, &params).unwrap();
+    assert_eq!(result.labels.len(), 6000);
+    assert_eq!(result.centroids.len(), 5);
+    assert!(
+        result.labels[..10].iter().all(|l| *l == -1),
+        "zero vectors are noise"
+    );
+    assert!(ari(&result.labels[10..], &truth[10..]) > 0.98);
+    for c in &result.centroids {
+        let norm = c.iter().map(|v| v * v).sum::<f32>().sqrt();
+        assert!((norm - 1.0).abs() < 1e-4);
+    }
+    assert!(group(
+        &points,
+        8,
+        &GroupingParams {
+            temperature: 0.0,
+            ..params
+        }
+    )
+    .is_err());
+}
