@@ -1,7 +1,7 @@
 //! The persistent instance map and its scene graph (DESIGN §5.6).
 //!
 //! Each window pass yields instances (Gaussians plus a semantic prototype). [`SceneMap::fuse`]
-//! associates them with the persistent instances by 3D overlap (voxel overlap coefficient) plus
+//! associates them with the persistent instances by 3D overlap (nearest-neighbour ratio) plus
 //! prototype similarity with an optimal assignment (Kuhn–Munkres, `pathfinding`); matched ones
 //! merge (voxel-downsampled Gaussians, count-weighted prototype), unmatched ones are born, and
 //! persistent instances that the window should have seen but did not lose confidence and die.
@@ -10,7 +10,7 @@
 
 pub mod persist;
 
-use std::collections::{HashSet, VecDeque};
+use std::collections::{HashMap, VecDeque};
 
 use glam::{DVec2, DVec3, Vec3};
 use pathfinding::prelude::{kuhn_munkres, Matrix};
@@ -77,6 +77,22 @@ impl Instance {
         let (lo, hi) = self.bounds();
         (lo + hi) / 2.0
     }
+
+    /// Fold `other` (a duplicate of this object) into this instance.
+    fn absorb(&mut self, other: &Instance, p: FusionParams) {
+        let mut all = self.gaussians.clone();
+        all.extend(&other.gaussians);
+        self.gaussians = capped(all, p.voxel, p.max_gaussians_per_instance);
+        let (wa, wb) = (self.prototype_weight, other.prototype_weight);
+        for (a, b) in self.prototype.iter_mut().zip(&other.prototype) {
+            *a = ((f64::from(*a) * wa + f64::from(*b) * wb) / (wa + wb).max(1e-12)) as f32;
+        }
+        self.prototype_weight = wa + wb;
+        self.confidence = self.confidence.max(other.confidence);
+        self.observations += other.observations;
+        self.first_seen_nanos = self.first_seen_nanos.min(other.first_seen_nanos);
+        self.last_seen_nanos = self.last_seen_nanos.max(other.last_seen_nanos);
+    }
 }
 
 fn bounds(g: &Gaussians) -> (Vec3, Vec3) {
@@ -90,7 +106,8 @@ fn bounds(g: &Gaussians) -> (Vec3, Vec3) {
 pub struct FusionParams {
     /// Voxel size for merging Gaussians and for the overlap test (metres).
     pub voxel: f32,
-    /// Minimum overlap coefficient |A ∩ B| / min(|A|, |B|) of occupied voxels for a match.
+    /// Minimum overlap for a match: the fraction of the smaller instance's points that have a
+    /// point of the other within 1.5 × the coarser point spacing (at least `voxel`).
     pub min_overlap: f32,
     /// Minimum prototype cosine similarity for a match.
     pub min_similarity: f32,
@@ -138,6 +155,8 @@ pub struct FusionReport {
     pub assigned: Vec<String>,
     pub merged: usize,
     pub born: usize,
+    /// Duplicates folded into an older instance: (absorbed id, surviving id).
+    pub absorbed: Vec<(String, String)>,
     pub missed: usize,
     pub died: usize,
     pub cleared: usize,
@@ -152,17 +171,94 @@ pub struct SceneMap {
     pub params: FusionParams,
 }
 
-fn voxels(g: &Gaussians, voxel: f32) -> HashSet<(i32, i32, i32)> {
-    g.means
-        .iter()
-        .map(|m| {
+/// The points of an instance as association sees them: a subsample, its bounds, its typical
+/// point spacing, and a hash grid for radius queries.
+struct Footprint {
+    points: Vec<Vec3>,
+    lo: Vec3,
+    hi: Vec3,
+    spacing: f32,
+}
+
+/// At most this many points per instance enter the overlap test (an even stride).
+const ASSOCIATION_POINTS: usize = 2048;
+
+impl Footprint {
+    fn new(g: &Gaussians, min_spacing: f32) -> Self {
+        let stride = g.len().div_ceil(ASSOCIATION_POINTS).max(1);
+        let points: Vec<Vec3> = g.means.iter().step_by(stride).copied().collect();
+        let (lo, hi) = bounds(g);
+        // Median nearest-neighbour distance over a few probes: far objects seen at a fixed pixel
+        // pitch are sparse, and the overlap radius must follow.
+        let probes = points.len().div_ceil(64).max(1);
+        let mut nearest: Vec<f32> = points
+            .iter()
+            .step_by(probes)
+            .enumerate()
+            .map(|(k, a)| {
+                points
+                    .iter()
+                    .enumerate()
+                    .filter(|(j, _)| *j != k * probes)
+                    .map(|(_, b)| a.distance_squared(*b))
+                    .fold(f32::INFINITY, f32::min)
+                    .sqrt()
+            })
+            .filter(|d| d.is_finite())
+            .collect();
+        nearest.sort_by(f32::total_cmp);
+        let spacing = nearest.get(nearest.len() / 2).copied().unwrap_or(0.0);
+        Self {
+            points,
+            lo,
+            hi,
+            spacing: spacing.max(min_spacing),
+        }
+    }
+
+    /// Fraction of the smaller footprint's points that have a point of the other within
+    /// `radius`: 1 for a view of part of the same surface, ~0 for a neighbouring object.
+    fn overlap(&self, other: &Footprint, radius: f32) -> f32 {
+        let apart =
+            (0..3).any(|a| self.lo[a] - radius > other.hi[a] || other.lo[a] - radius > self.hi[a]);
+        if apart {
+            return 0.0;
+        }
+        let (small, large) = if self.points.len() <= other.points.len() {
+            (self, other)
+        } else {
+            (other, self)
+        };
+        let cell = |p: Vec3| {
             (
-                (m.x / voxel).floor() as i32,
-                (m.y / voxel).floor() as i32,
-                (m.z / voxel).floor() as i32,
+                (p.x / radius).floor() as i32,
+                (p.y / radius).floor() as i32,
+                (p.z / radius).floor() as i32,
             )
-        })
-        .collect()
+        };
+        let mut grid: HashMap<(i32, i32, i32), Vec<Vec3>> = HashMap::new();
+        for p in &large.points {
+            grid.entry(cell(*p)).or_default().push(*p);
+        }
+        let r2 = radius * radius;
+        let hits = small
+            .points
+            .iter()
+            .filter(|p| {
+                let (x, y, z) = cell(**p);
+                (-1..=1).any(|dx| {
+                    (-1..=1).any(|dy| {
+                        (-1..=1).any(|dz| {
+                            grid.get(&(x + dx, y + dy, z + dz)).is_some_and(|cell| {
+                                cell.iter().any(|q| q.distance_squared(**p) <= r2)
+                            })
+                        })
+                    })
+                })
+            })
+            .count();
+        hits as f32 / small.points.len().max(1) as f32
+    }
 }
 
 /// Cosine similarity; 0 when either vector is zero.
@@ -254,27 +350,31 @@ impl SceneMap {
             }
         }
         let mut report = FusionReport::default();
-        // Association scores: geometry (voxel overlap) and semantics (prototype cosine), gated.
-        let window_voxels: Vec<_> = window
+        // Association scores: geometry (nearest-neighbour overlap within a radius that follows
+        // the point spacing) and semantics (prototype cosine), gated.
+        let window_footprints: Vec<Footprint> = window
             .iter()
-            .map(|w| voxels(&w.gaussians, p.voxel))
+            .map(|w| Footprint::new(&w.gaussians, p.voxel))
             .collect();
-        let map_voxels: Vec<_> = self
+        let map_footprints: Vec<Footprint> = self
             .instances
             .iter()
-            .map(|m| voxels(&m.gaussians, p.voxel))
+            .map(|m| Footprint::new(&m.gaussians, p.voxel))
             .collect();
         let scale = 1_000_000.0f32;
         let (rows, cols) = (window.len(), self.instances.len() + window.len());
         let mut pairs = vec![None; rows];
+        // Persistent instances that also pass the gate for a window instance matched elsewhere:
+        // duplicates of one object (born when an earlier view overlapped too little).
+        let mut duplicates: Vec<Vec<usize>> = vec![Vec::new(); rows];
         if rows > 0 && !self.instances.is_empty() {
             // Columns: every persistent instance, plus one "new instance" column per row so that
             // rows ≤ columns and birth is always possible (score 0).
             let mut weights = Matrix::new(rows, cols, 0i64);
-            for (i, wv) in window_voxels.iter().enumerate() {
-                for (j, mv) in map_voxels.iter().enumerate() {
-                    let common = wv.intersection(mv).count() as f32;
-                    let overlap = common / wv.len().min(mv.len()).max(1) as f32;
+            for (i, wf) in window_footprints.iter().enumerate() {
+                for (j, mf) in map_footprints.iter().enumerate() {
+                    let radius = 1.5 * wf.spacing.max(mf.spacing);
+                    let overlap = wf.overlap(mf, radius);
                     let similarity = cosine(&window[i].prototype, &self.instances[j].prototype);
                     if overlap >= p.min_overlap && similarity >= p.min_similarity {
                         let score =
@@ -287,13 +387,34 @@ impl SceneMap {
             for (i, &j) in assignment.iter().enumerate() {
                 if j < self.instances.len() && weights[(i, j)] > 0 {
                     pairs[i] = Some(j);
+                    duplicates[i] = (0..self.instances.len())
+                        .filter(|&other| other != j && weights[(i, other)] > 0)
+                        .filter(|&other| !assignment.contains(&other))
+                        .collect();
                 }
             }
         }
         let mut matched = vec![false; self.instances.len()];
+        let mut absorbed = vec![false; self.instances.len()];
         for (i, w) in window.into_iter().enumerate() {
             match pairs[i] {
                 Some(j) => {
+                    matched[j] = true;
+                    // Fold duplicates into the oldest of them (ids only ever grow).
+                    let mut group: Vec<usize> = std::iter::once(j)
+                        .chain(duplicates[i].iter().copied().filter(|&d| !absorbed[d]))
+                        .collect();
+                    group.sort_by_key(|&k| self.instances[k].first_seen_nanos);
+                    let j = group[0];
+                    for &d in &group[1..] {
+                        absorbed[d] = true;
+                        matched[d] = true;
+                        let duplicate = self.instances[d].clone();
+                        report
+                            .absorbed
+                            .push((duplicate.id.clone(), self.instances[j].id.clone()));
+                        self.instances[j].absorb(&duplicate, p);
+                    }
                     matched[j] = true;
                     let m = &mut self.instances[j];
                     let mut all = m.gaussians.clone();
@@ -328,7 +449,9 @@ impl SceneMap {
             }
         }
         // Unmatched instances that some window view should have seen lose confidence.
-        let mut keep = vec![true; self.instances.len()];
+        let mut keep: Vec<bool> = (0..self.instances.len())
+            .map(|j| j >= absorbed.len() || !absorbed[j])
+            .collect();
         for (j, instance) in self.instances.iter_mut().enumerate() {
             if j >= matched.len() || matched[j] {
                 continue;

@@ -284,15 +284,25 @@ fn io(path: &Path) -> impl FnOnce(std::io::Error) -> PersistError + '_ {
     }
 }
 
-/// Write `bytes` to `path` atomically through `sink`-style staging: a temp file in the same
-/// directory, synced, then renamed over `path`.
+/// Write `bytes` to `path` atomically: a temp file in the same directory, synced, then renamed
+/// over `path`. A failure at any point (disk full, crash) leaves `path` as it was and removes the
+/// temp file.
 pub fn write_atomically(path: &Path, bytes: &[u8]) -> Result<(), PersistError> {
+    write_atomically_with(path, bytes, |file, bytes| file.write_all(bytes))
+}
+
+/// [`write_atomically`] with the write itself supplied (tests use it to fail mid-write).
+pub fn write_atomically_with(
+    path: &Path,
+    bytes: &[u8],
+    write: impl FnOnce(&mut std::fs::File, &[u8]) -> std::io::Result<()>,
+) -> Result<(), PersistError> {
     let dir = path
         .parent()
         .filter(|p| !p.as_os_str().is_empty())
         .unwrap_or(Path::new("."));
     let mut temp = tempfile::NamedTempFile::new_in(dir).map_err(io(dir))?;
-    temp.write_all(bytes).map_err(io(path))?;
+    write(temp.as_file_mut(), bytes).map_err(io(path))?;
     temp.as_file().sync_all().map_err(io(path))?;
     temp.persist(path).map_err(|e| PersistError::Io {
         path: path.to_owned(),
