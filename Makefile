@@ -42,8 +42,11 @@ test: lint test-rust test-python
 golden: setup
 	$(VENV)/bin/python msgs/tests/golden/make_golden.py
 
-bench:
-	$(CARGO) bench -p groupforward
+# Criterion benches, then the side-by-side measurements the README shows (CSV, Markdown, SVG).
+bench: setup
+	$(CARGO) bench -p groupforward -p groupforward-sim
+	$(CARGO) run --release -p groupforward -- bench grouping --python $(VENV)/bin/python --out node/doc/bench/grouping
+	$(CARGO) run --release -p groupforward -- bench graph --out node/doc/bench/graph
 
 clean:
 	$(CARGO) clean

@@ -35,9 +35,207 @@ pub enum BenchCommand {
         #[arg(long, default_value = ".venv/bin/python")]
         python: String,
         /// Output prefix: writes `<out>.csv` and `<out>.md`.
-        #[arg(long, default_value = "bench/grouping")]
+        #[arg(long, default_value = "target/bench/grouping")]
         out: PathBuf,
     },
+    /// Fusion of one window into the persistent map, and the scene-graph update, against maps of
+    /// growing size.
+    Graph {
+        /// Persistent instances in the map, comma separated.
+        #[arg(long, value_delimiter = ',', default_value = "10,50,100,200,500")]
+        instances: Vec<usize>,
+        /// Instances in the fused window (re-observations of existing ones).
+        #[arg(long, default_value_t = 20)]
+        window: usize,
+        #[arg(long, default_value = "target/bench/graph")]
+        out: PathBuf,
+    },
+}
+
+/// A cube of Gaussians (`side`³ on a 4 cm grid) centred at `center`.
+fn cube(center: glam::Vec3, side: usize) -> groupforward::recon::gaussians::Gaussians {
+    let mut g = groupforward::recon::gaussians::Gaussians::with_dims(0, 0);
+    let half = side as f32 * 0.02;
+    for i in 0..side {
+        for j in 0..side {
+            for k in 0..side {
+                let offset = glam::Vec3::new(i as f32, j as f32, k as f32) * 0.04;
+                g.push(
+                    center - glam::Vec3::splat(half) + offset,
+                    0.9,
+                    glam::Vec3::splat(0.02),
+                    glam::Quat::IDENTITY,
+                    glam::Vec3::splat(0.5),
+                    &[],
+                    &[],
+                );
+            }
+        }
+    }
+    g
+}
+
+/// Fusion of one window and a scene-graph update against maps of `sizes` instances.
+fn graph_bench(sizes: &[usize], window: usize, out: &Path) -> Result<()> {
+    use groupforward::graph::{FusionParams, Keyframe, SceneMap, WindowInstance, WindowView};
+    use groupforward::recon::camera::Camera;
+    use groupforward::recon::Rigid;
+    if let Some(parent) = out.parent() {
+        std::fs::create_dir_all(parent)?;
+    }
+    // Instances on a 1 m grid in the floor plane, 512 Gaussians each, 16-d prototypes.
+    let place = |k: usize| glam::Vec3::new((k % 25) as f32, (k / 25) as f32, 0.5);
+    let prototype = |k: usize| -> Vec<f32> {
+        (0..16)
+            .map(|c| if c == k % 16 { 1.0 } else { 0.0 })
+            .collect()
+    };
+    let camera = Camera::from_fov(128, 96, 1.5)?;
+    let keyframe = |k: usize| Keyframe {
+        stamp_nanos: k as i64,
+        camera,
+        world_from_camera: Rigid::new(
+            glam::DQuat::from_rotation_x(-std::f64::consts::FRAC_PI_2),
+            glam::DVec3::new(12.0, -5.0, 1.0 + k as f64 * 0.01),
+        ),
+    };
+    let mut csv = String::from("instances,window,fuse_ms,graph_ms,edges\n");
+    let (mut fuse_series, mut graph_series) = (Vec::new(), Vec::new());
+    let mut md = format!(
+        "Fusion of a {window}-instance window and a 4-keyframe scene-graph update (512 Gaussians per instance), {} threads, median of 5.\n\n| instances | fuse (ms) | graph (ms) | edges |\n| ---: | ---: | ---: | ---: |\n",
+        rayon::current_num_threads()
+    );
+    for &n in sizes {
+        let mut map = SceneMap::new(FusionParams::default());
+        let views: Vec<WindowView> = (0..4)
+            .map(|k| WindowView {
+                keyframe: keyframe(k),
+                depth: vec![100.0; 128 * 96],
+            })
+            .collect();
+        let initial = (0..n)
+            .map(|k| WindowInstance {
+                gaussians: cube(place(k), 8),
+                prototype: prototype(k),
+                support: 100,
+            })
+            .collect();
+        map.fuse(initial, &views, 0)?;
+        let mut fuse_ms = Vec::new();
+        let mut graph_ms = Vec::new();
+        let mut edges = 0;
+        for round in 0..5 {
+            let shifted: Vec<WindowInstance> = (0..window.min(n))
+                .map(|k| WindowInstance {
+                    gaussians: cube(place(k) + glam::Vec3::splat(0.01), 8),
+                    prototype: prototype(k),
+                    support: 100,
+                })
+                .collect();
+            let mut trial = map.clone();
+            let started = Instant::now();
+            trial.fuse(shifted, &views, round + 1)?;
+            fuse_ms.push(started.elapsed().as_secs_f64() * 1e3);
+            let started = Instant::now();
+            let graph = trial.graph(4, f32::INFINITY)?;
+            graph_ms.push(started.elapsed().as_secs_f64() * 1e3);
+            edges = graph.edges.len();
+        }
+        let median = |v: &mut Vec<f64>| {
+            v.sort_by(f64::total_cmp);
+            v[v.len() / 2]
+        };
+        let (f, g) = (median(&mut fuse_ms), median(&mut graph_ms));
+        fuse_series.push((n as f64, f));
+        graph_series.push((n as f64, g));
+        csv.push_str(&format!("{n},{window},{f:.3},{g:.3},{edges}\n"));
+        md.push_str(&format!("| {n} | {f:.1} | {g:.1} | {edges} |\n"));
+        eprintln!("{n:>4} instances: fuse {f:.1} ms, graph {g:.1} ms ({edges} edges)");
+    }
+    md.push_str("\nReproduce: `groupforward bench graph`.\n");
+    line_chart(
+        &out.with_extension("svg"),
+        &format!("Map update with a {window}-instance window"),
+        "persistent instances",
+        "milliseconds",
+        &[
+            ("fuse", fuse_series),
+            ("scene graph (4 keyframes)", graph_series),
+        ],
+    )?;
+    std::fs::write(out.with_extension("csv"), csv)?;
+    std::fs::write(out.with_extension("md"), &md)?;
+    print!("{md}");
+    Ok(())
+}
+
+/// A log-log line chart as SVG: one series per (name, points).
+fn line_chart(
+    path: &Path,
+    title: &str,
+    x_label: &str,
+    y_label: &str,
+    series: &[(&str, Vec<(f64, f64)>)],
+) -> Result<()> {
+    use plotters::prelude::*;
+    let points = series.iter().flat_map(|(_, s)| s.iter());
+    let (mut x0, mut x1, mut y0, mut y1) = (f64::INFINITY, 0.0f64, f64::INFINITY, 0.0f64);
+    for &(x, y) in points.filter(|(x, y)| x.is_finite() && y.is_finite() && *x > 0.0 && *y > 0.0) {
+        x0 = x0.min(x);
+        x1 = x1.max(x);
+        y0 = y0.min(y);
+        y1 = y1.max(y);
+    }
+    if !(x0 < x1 && y0 <= y1) {
+        return Ok(());
+    }
+    let root = SVGBackend::new(path, (720, 420)).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(title, ("sans-serif", 20))
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(60)
+        .build_cartesian_2d(
+            (x0 * 0.8..x1 * 1.25).log_scale(),
+            (y0 * 0.5..y1 * 2.0).log_scale(),
+        )
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    chart
+        .configure_mesh()
+        .light_line_style(WHITE)
+        .x_label_formatter(&|x| format!("{x:.0}"))
+        .y_label_formatter(&|y| format!("{y}"))
+        .x_desc(x_label)
+        .y_desc(y_label)
+        .draw()
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    for (i, (name, data)) in series.iter().enumerate() {
+        let color = Palette99::pick(i).to_rgba();
+        let data: Vec<(f64, f64)> = data
+            .iter()
+            .copied()
+            .filter(|(_, y)| y.is_finite() && *y > 0.0)
+            .collect();
+        chart
+            .draw_series(LineSeries::new(data.clone(), color.stroke_width(2)))
+            .map_err(|e| anyhow::anyhow!("{e}"))?
+            .label(*name)
+            .legend(move |(x, y)| {
+                PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(2))
+            });
+        chart
+            .draw_series(data.iter().map(|p| Circle::new(*p, 3, color.filled())))
+            .map_err(|e| anyhow::anyhow!("{e}"))?;
+    }
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .draw()
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    root.present().map_err(|e| anyhow::anyhow!("{e}"))?;
+    Ok(())
 }
 
 pub fn run(command: BenchCommand) -> Result<()> {
@@ -59,6 +257,11 @@ pub fn run(command: BenchCommand) -> Result<()> {
             &python,
             &out,
         ),
+        BenchCommand::Graph {
+            instances,
+            window,
+            out,
+        } => graph_bench(&instances, window, &out),
     }
 }
 
@@ -140,6 +343,7 @@ fn grouping(
          | ---: | ---: | ---: | ---: | ---: | ---: |\n"
     );
     let mut version = String::from("not run");
+    let (mut rust_series, mut python_series) = (Vec::new(), Vec::new());
     for &n in sizes {
         let (points, truth) = blobs(n, dims, centers, 1.0, n as u64);
         // Best of two runs, as for the Python side.
@@ -180,6 +384,8 @@ fn grouping(
             None => (f64::NAN, -1, 0, f64::NAN, f64::NAN),
         };
         let speedup = py_seconds / rust_seconds;
+        rust_series.push((n as f64, rust_seconds));
+        python_series.push((n as f64, py_seconds));
         csv.push_str(&format!(
             "{n},{dims},{centers},{rust_seconds:.4},{},{rust_noise},{py_seconds:.4},{py_clusters},{py_noise},{speedup:.2},{ari_pair:.5},{ari_truth:.5},{ari_py_truth:.5}\n",
             ours.n_clusters
@@ -195,11 +401,27 @@ fn grouping(
     md.push_str(&format!(
         "\nPython hdbscan {version}. Reproduce: `groupforward bench grouping`.\n"
     ));
+    let svg_path = out.with_extension("svg");
+    line_chart(
+        &svg_path,
+        &format!("HDBSCAN on {dims}-d blobs, {threads} threads"),
+        "points",
+        "seconds",
+        &[
+            ("groupforward", rust_series),
+            ("Python hdbscan", python_series),
+        ],
+    )?;
     let csv_path = out.with_extension("csv");
     let md_path = out.with_extension("md");
     std::fs::File::create(&csv_path)?.write_all(csv.as_bytes())?;
     std::fs::File::create(&md_path)?.write_all(md.as_bytes())?;
     print!("{md}");
-    println!("wrote {} and {}", csv_path.display(), md_path.display());
+    println!(
+        "wrote {}, {} and {}",
+        csv_path.display(),
+        md_path.display(),
+        svg_path.display()
+    );
     Ok(())
 }

@@ -205,3 +205,88 @@ fn grouping_assigns_every_embedding_and_marks_zero_vectors_noise() {
     )
     .is_err());
 }
+
+mod semantics {
+    use glam::{DQuat, DVec3, Quat, Vec3};
+    use groupforward::group::semantics::{propagate, prototypes, LabelledView};
+    use groupforward::recon::camera::Camera;
+    use groupforward::recon::gaussians::Gaussians;
+    use groupforward::recon::Rigid;
+
+    #[test]
+    fn prototypes_are_masked_means_over_views_and_empty_instances_stay_zero() {
+        let labels_a = [0, 0, 1, -1];
+        let features_a = [1.0, 0.0, 3.0, 0.0, 0.0, 2.0, 9.0, 9.0];
+        let labels_b = [1, 0];
+        let features_b = [0.0, 4.0, 5.0, 0.0];
+        let views = [
+            LabelledView {
+                labels: &labels_a,
+                features: &features_a,
+            },
+            LabelledView {
+                labels: &labels_b,
+                features: &features_b,
+            },
+        ];
+        let (protos, counts) = prototypes(&views, 2, 3).unwrap();
+        assert_eq!(counts, vec![3, 2, 0]);
+        assert_eq!(protos[0], vec![3.0, 0.0]);
+        assert_eq!(protos[1], vec![0.0, 3.0]);
+        assert_eq!(protos[2], vec![0.0, 0.0], "never seen: zero, not NaN");
+        let bad = [LabelledView {
+            labels: &labels_b,
+            features: &[f32::NAN, 0.0, 0.0, 0.0],
+        }];
+        assert!(prototypes(&bad, 2, 3).is_err());
+        let short = [LabelledView {
+            labels: &labels_b,
+            features: &[0.0; 3],
+        }];
+        assert!(prototypes(&short, 2, 3).is_err());
+    }
+
+    #[test]
+    fn propagation_renders_instances_and_their_features_into_a_new_view() {
+        // Two walls of Gaussians 3 m ahead: left one instance 0, right one instance 1.
+        let mut g = Gaussians::with_dims(0, 0);
+        let mut assignment = Vec::new();
+        for i in 0..40 {
+            for j in 0..20 {
+                let x = -1.0 + i as f32 * 0.05;
+                let y = -0.5 + j as f32 * 0.05;
+                g.push(
+                    Vec3::new(x, y, 3.0),
+                    0.95,
+                    Vec3::splat(0.04),
+                    Quat::IDENTITY,
+                    Vec3::ONE,
+                    &[],
+                    &[],
+                );
+                assignment.extend_from_slice(if x < 0.0 {
+                    &[0.98, 0.02]
+                } else {
+                    &[0.03, 0.97]
+                });
+            }
+        }
+        let prototypes = vec![vec![1.0, 0.0, 0.0], vec![0.0, 1.0, 0.0]];
+        let camera = Camera::from_fov(64, 48, 1.2).unwrap();
+        // Camera at the origin looking along +z (world = camera frame).
+        let pose = Rigid::new(DQuat::IDENTITY, DVec3::ZERO);
+        let out = propagate(&g, &assignment, &prototypes, &camera, &pose, 0.5).unwrap();
+        let at = |u: usize, v: usize| out.labels[v * 64 + u];
+        assert_eq!(at(20, 24), 0);
+        assert_eq!(at(44, 24), 1);
+        assert_eq!(at(32, 2), -1, "nothing rendered above the walls");
+        let feature = &out.features[(24 * 64 + 20) * 3..(24 * 64 + 20) * 3 + 3];
+        assert!(
+            feature[0] > 0.9 && feature[1] < 0.1 && feature[2] == 0.0,
+            "{feature:?}"
+        );
+        let p = &out.probabilities[(24 * 64 + 44) * 2..(24 * 64 + 44) * 2 + 2];
+        assert!((p[0] + p[1] - 1.0).abs() < 1e-5 && p[1] > 0.9);
+        assert!(out.features.iter().all(|f| f.is_finite()));
+    }
+}

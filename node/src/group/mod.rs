@@ -6,6 +6,7 @@
 
 pub mod blobs;
 pub mod hdbscan;
+pub mod semantics;
 
 use hdbscan::{Clustering, HdbscanError, HdbscanParams};
 

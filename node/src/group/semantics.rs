@@ -1,0 +1,158 @@
+//! Semantics stored once per instance, and instances carried into any view (DESIGN §5.5).
+//!
+//! Prototype of instance k: f_k = Σ_v Σ_u M_{v,k}(u) F_v(u) / Σ_v Σ_u M_{v,k}(u), the masked mean
+//! of the semantic model's features over the context views. In a target view the assignment
+//! probabilities are rendered with the rasterizer; a pixel's instance is the most probable one and
+//! its feature is Σ_k p_k f_k.
+
+use crate::recon::camera::Camera;
+use crate::recon::gaussians::Gaussians;
+use crate::recon::raster::{render, RasterSettings};
+use crate::recon::Rigid;
+
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum SemanticsError {
+    #[error("view {view}: {what} has {got} values, expected {expected}")]
+    Shape {
+        view: usize,
+        what: &'static str,
+        got: usize,
+        expected: usize,
+    },
+    #[error("view {0}: non-finite semantic feature")]
+    NonFinite(usize),
+    #[error("rendering: {0}")]
+    Render(String),
+}
+
+/// One context view: per-pixel instance labels (-1 = none) and `channels` features per pixel.
+#[derive(Debug, Clone, Copy)]
+pub struct LabelledView<'a> {
+    pub labels: &'a [i32],
+    pub features: &'a [f32],
+}
+
+/// Masked-mean prototypes of `instances` instances, with the pixel count behind each (0: the
+/// instance was never labelled in these views, and its prototype is zero).
+pub fn prototypes(
+    views: &[LabelledView<'_>],
+    channels: usize,
+    instances: usize,
+) -> Result<(Vec<Vec<f32>>, Vec<usize>), SemanticsError> {
+    let mut sums = vec![vec![0.0f64; channels]; instances];
+    let mut counts = vec![0usize; instances];
+    for (v, view) in views.iter().enumerate() {
+        let expected = view.labels.len() * channels;
+        if view.features.len() != expected {
+            return Err(SemanticsError::Shape {
+                view: v,
+                what: "features",
+                got: view.features.len(),
+                expected,
+            });
+        }
+        if view.features.iter().any(|f| !f.is_finite()) {
+            return Err(SemanticsError::NonFinite(v));
+        }
+        for (pixel, &label) in view.labels.iter().enumerate() {
+            let Some(k) = usize::try_from(label).ok().filter(|&k| k < instances) else {
+                continue;
+            };
+            counts[k] += 1;
+            let feature = &view.features[pixel * channels..(pixel + 1) * channels];
+            for (s, f) in sums[k].iter_mut().zip(feature) {
+                *s += f64::from(*f);
+            }
+        }
+    }
+    let prototypes = sums
+        .into_iter()
+        .zip(&counts)
+        .map(|(sum, &count)| {
+            sum.into_iter()
+                .map(|s| {
+                    if count > 0 {
+                        (s / count as f64) as f32
+                    } else {
+                        0.0
+                    }
+                })
+                .collect()
+        })
+        .collect();
+    Ok((prototypes, counts))
+}
+
+/// Instances and semantics carried into a view.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Propagated {
+    pub width: usize,
+    pub height: usize,
+    /// Most probable instance per pixel, -1 where the map covers the pixel with less than
+    /// `min_alpha` opacity.
+    pub labels: Vec<i32>,
+    /// Normalised assignment probabilities per pixel (`instances` per pixel).
+    pub probabilities: Vec<f32>,
+    /// Σ_k p_k f_k per pixel (`channels` per pixel).
+    pub features: Vec<f32>,
+}
+
+/// Render the Gaussians' assignment probabilities (`assignment`, Gaussian-major, one row of
+/// `prototypes.len()` per Gaussian) into `camera` and derive labels and features.
+pub fn propagate(
+    gaussians: &Gaussians,
+    assignment: &[f32],
+    prototypes: &[Vec<f32>],
+    camera: &Camera,
+    camera_from_world: &Rigid,
+    min_alpha: f32,
+) -> Result<Propagated, SemanticsError> {
+    let instances = prototypes.len();
+    let channels = prototypes.first().map_or(0, Vec::len);
+    let rendered = render(
+        gaussians,
+        assignment,
+        instances,
+        camera,
+        camera_from_world,
+        &RasterSettings::default(),
+    )
+    .map_err(|e| SemanticsError::Render(e.to_string()))?;
+    let pixels = rendered.width * rendered.height;
+    let mut labels = vec![-1i32; pixels];
+    let mut probabilities = vec![0.0f32; pixels * instances];
+    let mut features = vec![0.0f32; pixels * channels];
+    for pixel in 0..pixels {
+        let alpha = rendered.alpha[pixel];
+        if alpha < min_alpha || alpha <= 0.0 {
+            continue;
+        }
+        let row = &rendered.features[pixel * instances..(pixel + 1) * instances];
+        let total: f32 = row.iter().sum();
+        if total <= 0.0 {
+            continue;
+        }
+        let mut best = (0usize, f32::NEG_INFINITY);
+        for (k, &p) in row.iter().enumerate() {
+            let p = p / total;
+            probabilities[pixel * instances + k] = p;
+            if p > best.1 {
+                best = (k, p);
+            }
+            for (f, proto) in features[pixel * channels..(pixel + 1) * channels]
+                .iter_mut()
+                .zip(&prototypes[k])
+            {
+                *f += p * proto;
+            }
+        }
+        labels[pixel] = best.0 as i32;
+    }
+    Ok(Propagated {
+        width: rendered.width,
+        height: rendered.height,
+        labels,
+        probabilities,
+        features,
+    })
+}
