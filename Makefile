@@ -6,7 +6,7 @@ PYTHON ?= python3
 VENV := .venv
 STAMP := $(VENV)/.installed-$(shell sha256sum tests/python/requirements.txt | cut -c1-16)
 
-.PHONY: all setup build demo test test-rust test-python lint bench golden clean
+.PHONY: all setup build demo test test-rust test-python lint bench golden clean train-setup train-data
 
 all: test
 
@@ -47,6 +47,15 @@ bench: setup
 	$(CARGO) bench -p groupforward -p groupforward-sim
 	$(CARGO) run --release -p groupforward -- bench grouping --python $(VENV)/bin/python --out node/doc/bench/grouping
 	$(CARGO) run --release -p groupforward -- bench graph --out node/doc/bench/graph
+
+# Training (never part of CI): PyTorch and friends into train/.venv, and sim datasets for it.
+train-setup:
+	@test -x train/.venv/bin/python || $(PYTHON) -m venv train/.venv
+	train/.venv/bin/python -m pip install --quiet --disable-pip-version-check -r train/requirements.txt
+
+train-data: build
+	./target/debug/groupforward sim dataset --split train --samples 2000 --out train/data/train
+	./target/debug/groupforward sim dataset --split val --samples 100 --out train/data/val
 
 clean:
 	$(CARGO) clean

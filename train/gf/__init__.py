@@ -1,0 +1,1 @@
+"""GroupForward-mini training code: sim dataset loader, network, losses."""

@@ -1,0 +1,153 @@
+"""Losses of DESIGN §5.3 (the direct terms; rendered terms come with the differentiable rasterizer).
+
+Direct: N context pixels are sampled per window with weight 1/sqrt(instance area) (so small objects
+count), their embeddings ℓ2-normalised; centroids are the normalised means per instance;
+L_pull = mean_n ‖e_n − ē_{y_n}‖, L_push = mean_{k≠l} [m − ‖ē_k − ē_l‖]₊ with m = 1. Walls and floor
+(instance 0) are one background instance. Depth: L1 on log depth over valid pixels.
+"""
+
+import torch
+from torch.nn import functional as F
+
+LAMBDA_PULL = 0.5
+LAMBDA_PUSH = 0.5
+LAMBDA_DIRECT = 1.0
+MARGIN = 1.0
+
+
+def sample_pixels(instance, count, generator=None):
+    """Indices of `count` pixels of one window (flattened over views), weighted by 1/sqrt(area)."""
+    flat = instance.reshape(-1)
+    ids, inverse, areas = torch.unique(flat, return_inverse=True, return_counts=True)
+    weights = 1.0 / areas.float().sqrt()
+    return torch.multinomial(weights[inverse], count, replacement=True, generator=generator)
+
+
+def direct_losses(embeddings, instance, samples=4096, generator=None):
+    """embeddings [B,V,D,H,W], instance [B,V,H,W] -> (pull, push) averaged over the batch."""
+    pulls, pushes = [], []
+    for b in range(embeddings.shape[0]):
+        e = embeddings[b].permute(0, 2, 3, 1).reshape(-1, embeddings.shape[2])
+        y = instance[b].reshape(-1)
+        index = sample_pixels(y, samples, generator)
+        e = F.normalize(e[index], dim=1)
+        y = y[index]
+        ids, labels = torch.unique(y, return_inverse=True)
+        k = ids.numel()
+        sums = torch.zeros(k, e.shape[1]).index_add_(0, labels, e)
+        centroids = F.normalize(sums, dim=1)
+        pulls.append((e - centroids[labels]).norm(dim=1).mean())
+        if k > 1:
+            distances = torch.cdist(centroids, centroids)
+            off_diagonal = ~torch.eye(k, dtype=torch.bool)
+            pushes.append(F.relu(MARGIN - distances[off_diagonal]).mean())
+        else:
+            pushes.append(torch.zeros(()))
+    return torch.stack(pulls).mean(), torch.stack(pushes).mean()
+
+
+def depth_loss(predicted, target):
+    valid = torch.isfinite(target) & (target > 0)
+    if not valid.any():
+        return torch.zeros(())
+    return (predicted[valid].clamp_min(1e-3).log() - target[valid].log()).abs().mean()
+
+
+LAMBDA_DICE = 0.5
+LAMBDA_FOCAL = 0.5
+LAMBDA_RENDER = 1.0
+TAU = 0.1
+
+
+def lift(depth, gaussians, images, k, world_from_camera, count, generator=None):
+    """Pick `count` pixel-aligned Gaussians of one window (views of depth [V,H,W], gaussians
+    [V,11,H,W]) and lift them to the world as the node does (node/src/recon/gaussians.rs `lift`).
+    Returns means, rotations, scales, opacities, colours and the picked flat pixel indices."""
+    from .render import quaternion_matrix
+
+    views, height, width = depth.shape
+    index = torch.randint(0, views * height * width, (count,), generator=generator)
+    view = index // (height * width)
+    pixel = index % (height * width)
+    y = (pixel // width).to(depth.dtype)
+    x = (pixel % width).to(depth.dtype)
+    d = depth.reshape(-1)[index]
+    kk = k.to(depth.dtype)[view]
+    pose = world_from_camera.to(depth.dtype)[view]
+    camera = torch.stack([(x - kk[:, 0, 2]) / kk[:, 0, 0] * d, (y - kk[:, 1, 2]) / kk[:, 1, 1] * d, d], dim=-1)
+    means = (pose[:, :3, :3] @ camera[:, :, None])[:, :, 0] + pose[:, :3, 3]
+    g = gaussians.permute(0, 2, 3, 1).reshape(-1, 11)[index]
+    focal = (kk[:, 0, 0] + kk[:, 1, 1]) / 2
+    scales = g[:, 1:4] * (d / focal)[:, None]
+    rotations = pose[:, :3, :3] @ quaternion_matrix(g[:, 4:8])
+    colours = (images.permute(0, 2, 3, 1).reshape(-1, 3)[index] + g[:, 8:11]).clamp(0, 1)
+    return means, rotations, scales, g[:, 0], colours, index
+
+
+def small_intrinsics(k, scale):
+    """Intrinsics for an image `scale` times the size (pixel centres at integer coordinates)."""
+    out = k.clone()
+    out[..., 0, 0] *= scale
+    out[..., 1, 1] *= scale
+    out[..., 0, 2] = (k[..., 0, 2] + 0.5) * scale - 0.5
+    out[..., 1, 2] = (k[..., 1, 2] + 0.5) * scale - 0.5
+    return out
+
+
+def rendered_losses(depth, gaussians, embeddings, batch, count=4096, scale=0.25, generator=None):
+    """Rendered terms of DESIGN §5.3 on the context views: assignment probabilities
+    p_gk = softmax_k(−‖e_g − ē_k‖/τ) rendered with dice + focal against the instance masks, rendered
+    embeddings pulled to their instance centroid and centroids pushed apart, and a photometric L1.
+    Returns (dice, focal, pull, push, photometric), batch means."""
+    from .render import render
+
+    terms = []
+    for b in range(depth.shape[0]):
+        instance = batch['instance'][b]
+        views, height, width = instance.shape
+        e = F.normalize(embeddings[b].permute(0, 2, 3, 1).reshape(-1, embeddings.shape[2]), dim=1)
+        ids, labels = torch.unique(instance.reshape(-1), return_inverse=True)
+        k = ids.numel()
+        centroids = F.normalize(torch.zeros(k, e.shape[1]).index_add_(0, labels, e), dim=1)
+        means, rotations, scales, opacities, colours, index = lift(
+            depth[b], gaussians[b], batch['images'][b], batch['k'][b], batch['world_from_camera'][b], count,
+            generator)
+        probabilities = torch.softmax(-torch.cdist(e[index], centroids) / TAU, dim=1)
+        features = torch.cat([probabilities, e[index], colours], dim=1)
+        h, w = int(height * scale), int(width * scale)
+        kk = small_intrinsics(batch['k'][b].to(depth.dtype), scale)
+        dice, focal, pull, push, photo = [], [], [], [], []
+        for v in range(views):
+            out, alpha = render(means, rotations, scales, opacities, features, kk[v],
+                                batch['world_from_camera'][b][v].to(depth.dtype), h, w)
+            # Ground truth at the render's resolution (nearest pixel centre).
+            rows = ((torch.arange(h) + 0.5) / scale).long().clamp(max=height - 1)
+            cols = ((torch.arange(w) + 0.5) / scale).long().clamp(max=width - 1)
+            target = labels.reshape(views, height, width)[v][rows][:, cols]
+            covered = alpha > 0.5
+            if covered.sum() < 4:
+                continue
+            p = out[..., :k] / alpha.clamp_min(1e-6)[..., None]
+            one_hot = F.one_hot(target, k).to(p.dtype)
+            p, one_hot = p[covered], one_hot[covered]
+            intersection = (p * one_hot).sum(0)
+            present = one_hot.sum(0) > 0
+            dice.append((1 - 2 * intersection / (p.sum(0) + one_hot.sum(0)).clamp_min(1e-6))[present].mean())
+            p_true = (p * one_hot).sum(1).clamp(1e-6, 1.0)
+            focal.append((-(1 - p_true) ** 2 * p_true.log()).mean())
+            rendered_e = F.normalize(out[..., k:k + e.shape[1]][covered], dim=1)
+            pixel_labels = target[covered]
+            pull.append((rendered_e - centroids[pixel_labels]).norm(dim=1).mean())
+            present_ids, present_labels = torch.unique(pixel_labels, return_inverse=True)
+            if present_ids.numel() > 1:
+                rendered_centroids = F.normalize(
+                    torch.zeros(present_ids.numel(), e.shape[1]).index_add_(0, present_labels, rendered_e), dim=1)
+                distances = torch.cdist(rendered_centroids, rendered_centroids)
+                off = ~torch.eye(present_ids.numel(), dtype=torch.bool)
+                push.append(F.relu(MARGIN - distances[off]).mean())
+            image = batch['images'][b][v][:, rows][:, :, cols].permute(1, 2, 0)
+            rendered_colour = out[..., k + e.shape[1]:] / alpha.clamp_min(1e-6)[..., None]
+            photo.append((rendered_colour - image).abs()[covered].mean())
+        mean = lambda xs: torch.stack(xs).mean() if xs else torch.zeros(())  # noqa: E731
+        terms.append(torch.stack([mean(dice), mean(focal), mean(pull), mean(push), mean(photo)]))
+    return tuple(torch.stack(terms).mean(0))

@@ -1,0 +1,145 @@
+"""GroupForward-mini: the paper's feed-forward design at small scale, in two input modes.
+
+A shared per-view convolutional encoder, cross-view attention over all views' bottleneck tokens, a
+U-Net decoder, and three heads (DESIGN §4 contract):
+- depth [B,V,H,W] in metres (exp of the head, so always positive);
+- gaussians [B,V,11,H,W] = opacity (sigmoid), scale (3, softplus, pixels at unit depth), rotation (4,
+  unit quaternion xyzw in the camera frame), colour residual (3, 0.2·tanh);
+- embeddings [B,V,8,H,W]: from multi-scale decoder features and the predicted (log) depth, computed
+  at half resolution and upsampled.
+
+RGB-D mode (the node's default) takes `points` (world XYZ from sensor depth, centred and scaled as
+gf.data.world_points does) next to `images`; RGB mode (the paper's setting) takes images only and the
+depth head predicts geometry. Only plain ops (conv, group norm, matmul attention, nearest upsampling)
+so the legacy ONNX exporter handles a dynamic number of views.
+"""
+
+import math
+
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+
+def block(cin, cout, stride=1):
+    return nn.Sequential(
+        nn.Conv2d(cin, cout, 3, stride=stride, padding=1),
+        nn.GroupNorm(8, cout),
+        nn.GELU(),
+        nn.Conv2d(cout, cout, 3, padding=1),
+        nn.GroupNorm(8, cout),
+        nn.GELU(),
+    )
+
+
+class CrossViewAttention(nn.Module):
+    """Pre-norm transformer layer over the tokens of all views of a window."""
+
+    def __init__(self, dim, heads=4, hidden=256):
+        super().__init__()
+        self.heads = heads
+        self.norm1 = nn.LayerNorm(dim)
+        self.qkv = nn.Linear(dim, 3 * dim)
+        self.proj = nn.Linear(dim, dim)
+        self.norm2 = nn.LayerNorm(dim)
+        self.mlp = nn.Sequential(nn.Linear(dim, hidden), nn.GELU(), nn.Linear(hidden, dim))
+
+    def forward(self, x):  # x: [B, T, D]
+        b, t, d = x.shape
+        h = self.heads
+        q, k, v = self.qkv(self.norm1(x)).reshape(b, t, 3, h, d // h).permute(2, 0, 3, 1, 4)
+        attention = torch.softmax(q @ k.transpose(-1, -2) / math.sqrt(d // h), dim=-1)
+        y = (attention @ v).transpose(1, 2).reshape(b, t, d)
+        x = x + self.proj(y)
+        return x + self.mlp(self.norm2(x))
+
+
+def positional_encoding(height, width, dim):
+    """2D sinusoidal encoding [dim, height, width]: half the channels for rows, half for columns."""
+    quarter = dim // 4
+    frequencies = torch.exp(torch.arange(quarter) * (-math.log(100.0) / quarter))
+    ys = torch.arange(height).float()[:, None] * frequencies[None]
+    xs = torch.arange(width).float()[:, None] * frequencies[None]
+    rows = torch.cat([ys.sin(), ys.cos()], dim=1).T[:, :, None].expand(-1, -1, width)
+    cols = torch.cat([xs.sin(), xs.cos()], dim=1).T[:, None, :].expand(-1, height, -1)
+    return torch.cat([rows, cols], dim=0)
+
+
+class GroupForwardMini(nn.Module):
+    def __init__(self, mode='rgbd', height=96, width=128, embedding_dim=8, width_mult=1.0):
+        super().__init__()
+        assert mode in ('rgbd', 'rgb')
+        self.mode = mode
+        self.embedding_dim = embedding_dim
+        c = [int(32 * width_mult), int(64 * width_mult), int(96 * width_mult), int(128 * width_mult)]
+        cin = 6 if mode == 'rgbd' else 3
+        self.enc1 = block(cin, c[0], stride=2)
+        self.enc2 = block(c[0], c[1], stride=2)
+        self.enc3 = block(c[1], c[2], stride=2)
+        self.enc4 = block(c[2], c[3], stride=2)
+        self.register_buffer('position', positional_encoding(height // 16, width // 16, c[3]), persistent=False)
+        self.attention = nn.ModuleList([CrossViewAttention(c[3]) for _ in range(2)])
+        self.dec3 = block(c[3] + c[2], c[2])
+        self.dec2 = block(c[2] + c[1], c[1])
+        self.dec1 = block(c[1] + c[0], c[0])
+        # Full resolution is the expensive level: one convolution there.
+        self.dec0 = nn.Sequential(nn.Conv2d(c[0] + cin, c[0], 3, padding=1), nn.GroupNorm(8, c[0]), nn.GELU())
+        self.depth_head = nn.Conv2d(c[0], 1, 3, padding=1)
+        self.gaussian_head = nn.Conv2d(c[0], 11, 3, padding=1)
+        # At half resolution (a quarter of the cost), upsampled bilinearly.
+        self.instance_head = nn.Sequential(
+            nn.Conv2d(c[0] + c[0] + c[1] + 1, 64, 3, padding=1),
+            nn.GELU(),
+            nn.Conv2d(64, 64, 3, padding=1),
+            nn.GELU(),
+            nn.Conv2d(64, embedding_dim, 1),
+        )
+        # Rooms are metres deep: start the depth head near 2.5 m.
+        nn.init.zeros_(self.depth_head.weight)
+        nn.init.constant_(self.depth_head.bias, math.log(2.5))
+
+    def reconstruction_parameters(self):
+        return [p for name, p in self.named_parameters() if not name.startswith('instance_head')]
+
+    def instance_parameters(self):
+        return list(self.instance_head.parameters())
+
+    def forward(self, images, points=None):
+        b, v = images.shape[0], images.shape[1]
+        x = images.flatten(0, 1)
+        if self.mode == 'rgbd':
+            x = torch.cat([x, points.flatten(0, 1)], dim=1)
+        e1 = self.enc1(x)
+        e2 = self.enc2(e1)
+        e3 = self.enc3(e2)
+        e4 = self.enc4(e3)
+        # Cross-view fusion: every token of every view attends to all tokens of the window.
+        n, d, h, w = e4.shape
+        tokens = (e4 + self.position).reshape(b, v, d, h * w).permute(0, 1, 3, 2).reshape(b, v * h * w, d)
+        for layer in self.attention:
+            tokens = layer(tokens)
+        e4 = tokens.reshape(b, v, h * w, d).permute(0, 1, 3, 2).reshape(n, d, h, w)
+        up = lambda t: F.interpolate(t, scale_factor=2.0, mode='nearest')  # noqa: E731
+        d3 = self.dec3(torch.cat([up(e4), e3], dim=1))
+        d2 = self.dec2(torch.cat([up(d3), e2], dim=1))
+        d1 = self.dec1(torch.cat([up(d2), e1], dim=1))
+        d0 = self.dec0(torch.cat([up(d1), x], dim=1))
+        log_depth = self.depth_head(d0)
+        depth = torch.exp(log_depth.clamp(-5.0, 5.0))
+        raw = self.gaussian_head(d0)
+        opacity = torch.sigmoid(raw[:, 0:1])
+        scale = F.softplus(raw[:, 1:4]) + 0.1
+        rotation = raw[:, 4:8] + torch.tensor([0.0, 0.0, 0.0, 1.0]).reshape(1, 4, 1, 1)
+        rotation = rotation / rotation.norm(dim=1, keepdim=True).clamp_min(1e-6)
+        residual = 0.2 * torch.tanh(raw[:, 8:11])
+        gaussians = torch.cat([opacity, scale, rotation, residual], dim=1)
+        down = lambda t: F.avg_pool2d(t, 2)  # noqa: E731
+        features = torch.cat([down(d0), d1, up(d2), down(log_depth)], dim=1)
+        embeddings = F.interpolate(self.instance_head(features), scale_factor=2.0, mode='bilinear',
+                                   align_corners=False)
+        shape = lambda t: t.reshape(b, v, *t.shape[1:])  # noqa: E731
+        return shape(depth[:, 0]), shape(gaussians), shape(embeddings)
+
+
+def parameter_count(model):
+    return sum(p.numel() for p in model.parameters())

@@ -1,0 +1,153 @@
+"""Train GroupForward-mini on simulator datasets with the three-stage curriculum of DESIGN §5.3.
+
+  (1) reconstruction only, instance head frozen;  (2) instance head only;  (3) everything jointly.
+
+Usage (from the repository root, after `make train-setup` and writing datasets with
+`groupforward sim dataset --split train ...` / `--split val ...`):
+
+  train/.venv/bin/python train/train_recon.py --train data/train --val data/val --mode rgbd \\
+      --minutes 40 --out train/runs/rgbd
+
+Writes <out>/model.pt (best val ARI), <out>/log.csv (step, stage, losses, seconds) and
+<out>/summary.json. CPU is enough (threads: --threads, default 2).
+"""
+
+import argparse
+import csv
+import json
+import sys
+import time
+from pathlib import Path
+
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from gf.data import SimDataset  # noqa: E402
+from gf.losses import (  # noqa: E402
+    LAMBDA_DICE, LAMBDA_DIRECT, LAMBDA_FOCAL, LAMBDA_PULL, LAMBDA_PUSH, LAMBDA_RENDER, depth_loss, direct_losses,
+    rendered_losses)
+from gf.model import GroupForwardMini, parameter_count  # noqa: E402
+from eval_recon import evaluate  # noqa: E402
+
+
+def stage_of(fraction, split):
+    """Curriculum stage for the share of the budget used."""
+    if fraction < split[0]:
+        return 1
+    if fraction < split[0] + split[1]:
+        return 2
+    return 3
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument('--train', required=True)
+    parser.add_argument('--val', required=True)
+    parser.add_argument('--mode', choices=['rgbd', 'rgb'], default='rgbd')
+    parser.add_argument('--minutes', type=float, default=40.0, help='wall-clock budget')
+    parser.add_argument('--stages', type=float, nargs=3, default=[0.2, 0.3, 0.5],
+                        help='budget shares of the three curriculum stages')
+    parser.add_argument('--batch', type=int, default=2)
+    parser.add_argument('--lr', type=float, default=2e-3)
+    parser.add_argument('--threads', type=int, default=2)
+    parser.add_argument('--eval-every', type=float, default=8.0, help='minutes between val evaluations')
+    parser.add_argument('--val-windows', type=int, default=24)
+    parser.add_argument('--seed', type=int, default=0)
+    parser.add_argument('--no-rendered', action='store_true',
+                        help='direct losses only (the ablation): no rasterized dice/focal/embedding/photometric terms')
+    parser.add_argument('--render-gaussians', type=int, default=2048,
+                        help='Gaussians per window the rendered losses rasterize (at 1/4 resolution)')
+    parser.add_argument('--out', required=True)
+    args = parser.parse_args()
+
+    torch.set_num_threads(args.threads)
+    torch.manual_seed(args.seed)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    train = SimDataset(args.train, args.mode)
+    val = SimDataset(args.val, args.mode)
+    assert train.split == 'train' and val.split == 'val', 'train and val must come from their own splits'
+    model = GroupForwardMini(mode=args.mode)
+    print(f'GroupForward-mini ({args.mode}): {parameter_count(model) / 1e6:.2f} M parameters; '
+          f'{len(train)} train windows, {len(val)} val windows')
+    loader = torch.utils.data.DataLoader(train, batch_size=args.batch, shuffle=True, drop_last=True,
+                                         num_workers=0)
+    optimizers = {
+        1: torch.optim.AdamW(model.reconstruction_parameters(), lr=args.lr, weight_decay=1e-4),
+        2: torch.optim.AdamW(model.instance_parameters(), lr=args.lr, weight_decay=1e-4),
+        3: torch.optim.AdamW(model.parameters(), lr=args.lr / 2, weight_decay=1e-4),
+    }
+    budget = args.minutes * 60.0
+    started = time.perf_counter()
+    last_eval = started
+    best = {'ari': -1.0}
+    step = 0
+    log = open(out / 'log.csv', 'w', newline='')
+    writer = csv.writer(log)
+    writer.writerow(['step', 'stage', 'seconds', 'loss', 'depth', 'pull', 'push', 'render', 'photometric'])
+    generator = torch.Generator().manual_seed(args.seed)
+    done = False
+    while not done:
+        for batch in loader:
+            elapsed = time.perf_counter() - started
+            if elapsed >= budget:
+                done = True
+                break
+            stage = stage_of(elapsed / budget, args.stages)
+            model.train()
+            depth, gaussians, embeddings = model(batch['images'], batch['points'] if args.mode == 'rgbd' else None)
+            l_depth = depth_loss(depth, batch['depth'])
+            pull, push = direct_losses(embeddings, batch['instance'], generator=generator)
+            l_direct = LAMBDA_PULL * pull + LAMBDA_PUSH * push
+            l_render = torch.zeros(())
+            l_photo = torch.zeros(())
+            if not args.no_rendered:
+                dice, focal, r_pull, r_push, l_photo = rendered_losses(
+                    depth, gaussians, embeddings, batch, count=args.render_gaussians, generator=generator)
+                l_render = (LAMBDA_DICE * dice + LAMBDA_FOCAL * focal + LAMBDA_PULL * r_pull
+                            + LAMBDA_PUSH * r_push)
+            if stage == 1:
+                loss = l_depth + l_photo
+            elif stage == 2:
+                loss = LAMBDA_DIRECT * l_direct + LAMBDA_RENDER * l_render
+            else:
+                loss = l_depth + l_photo + LAMBDA_DIRECT * l_direct + LAMBDA_RENDER * l_render
+            optimizer = optimizers[stage]
+            optimizer.zero_grad()
+            loss.backward()
+            torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
+            optimizer.step()
+            step += 1
+            writer.writerow([step, stage, f'{elapsed:.1f}', f'{loss.item():.5f}', f'{l_depth.item():.5f}',
+                             f'{pull.item():.5f}', f'{push.item():.5f}', f'{l_render.item():.5f}',
+                             f'{l_photo.item():.5f}'])
+            if step % 20 == 0:
+                log.flush()
+                print(f'step {step} stage {stage} {elapsed / 60:.1f} min: depth {l_depth.item():.4f} '
+                      f'pull {pull.item():.4f} push {push.item():.4f} render {l_render.item():.4f} '
+                      f'photometric {l_photo.item():.4f}', flush=True)
+            now = time.perf_counter()
+            if stage >= 2 and now - last_eval >= args.eval_every * 60.0:
+                last_eval = now
+                metrics = evaluate(model, val, args.mode, windows=args.val_windows)
+                print(f'  val: {metrics}', flush=True)
+                if metrics['ari'] > best['ari']:
+                    best = dict(metrics, step=step, minutes=elapsed / 60)
+                    torch.save(model.state_dict(), out / 'model.pt')
+    metrics = evaluate(model, val, args.mode, windows=args.val_windows)
+    print(f'final val: {metrics}', flush=True)
+    if metrics['ari'] > best['ari']:
+        best = dict(metrics, step=step, minutes=(time.perf_counter() - started) / 60)
+        torch.save(model.state_dict(), out / 'model.pt')
+    summary = {'mode': args.mode, 'rendered_losses': not args.no_rendered, 'steps': step,
+               'minutes': (time.perf_counter() - started) / 60,
+               'threads': args.threads, 'train_windows': len(train), 'val_windows': args.val_windows,
+               'best': best, 'final': metrics, 'parameters': parameter_count(model),
+               'args': vars(args)}
+    (out / 'summary.json').write_text(json.dumps(summary, indent=2))
+    log.close()
+    print(json.dumps(summary['best']))
+
+
+if __name__ == '__main__':
+    main()
