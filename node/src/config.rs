@@ -47,6 +47,7 @@ pub struct Config {
     pub ingest: IngestSection,
     pub status: StatusSection,
     pub models: ModelsSection,
+    pub map: MapSection,
 }
 
 impl Default for Config {
@@ -59,6 +60,7 @@ impl Default for Config {
             ingest: IngestSection::default(),
             status: StatusSection::default(),
             models: ModelsSection::default(),
+            map: MapSection::default(),
         }
     }
 }
@@ -207,6 +209,25 @@ impl Default for StatusSection {
     fn default() -> Self {
         Self {
             period_secs: DEFAULT_STATUS_PERIOD_SECS,
+        }
+    }
+}
+
+/// The persistent instance map: where `~/save_map` and `~/load_map` write and read by default.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MapSection {
+    /// Snapshot file; `null`: services need an explicit path and nothing is restored.
+    pub file: Option<String>,
+    /// Load `file` at start when it exists (a corrupt or newer file is logged; the map starts empty).
+    pub restore_on_start: bool,
+}
+
+impl Default for MapSection {
+    fn default() -> Self {
+        Self {
+            file: None,
+            restore_on_start: true,
         }
     }
 }

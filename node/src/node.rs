@@ -8,13 +8,14 @@ use std::time::{Duration, Instant};
 
 use groupforward_msgs::gf_msgs::{
     CameraStatus, GetInstanceRequest, GetInstanceResponse, Instance, ListInstancesRequest,
-    ListInstancesResponse, NodeStatus, RejectCount,
+    ListInstancesResponse, MapPathRequest, MapResultResponse, NodeStatus, RejectCount,
 };
 use groupforward_msgs::rmw_zenoh::{resolve_name, Qos};
-use groupforward_msgs::services::{GetInstance, ListInstances};
+use groupforward_msgs::services::{GetInstance, ListInstances, LoadMap, SaveMap};
 use groupforward_msgs::{builtin_interfaces::Time, cdr, std_msgs::Header, RosMessage, RosService};
 
 use crate::config::Config;
+use crate::graph::{persist, SceneMap};
 use crate::ingest::{Ingest, Reject, Rejection, Route, SyncedFrame};
 use crate::transport::{Endpoint, Transport, TransportError};
 
@@ -194,8 +195,131 @@ fn wall_nanos() -> i64 {
 #[derive(Debug, Default)]
 pub struct Shared {
     pub status: NodeStatus,
-    /// Live instances; grouping fills this in a later stage.
+    /// The persistent instance map (filled by window passes once the models land).
+    pub map: SceneMap,
+    /// `map` as messages, refreshed whenever the map changes.
     pub instances: Vec<Instance>,
+    /// Default snapshot file (`map.file`).
+    pub map_file: Option<String>,
+}
+
+fn time_of(nanos: i64) -> Time {
+    Time::from_nanos(nanos)
+}
+
+/// The map's instances as `groupforward_msgs/Instance` (axis-aligned boxes in the map frame).
+pub fn instance_messages(map: &SceneMap) -> Vec<Instance> {
+    map.instances
+        .iter()
+        .map(|i| {
+            let (lo, hi) = i.bounds();
+            let (centre, size) = ((lo + hi) / 2.0, hi - lo);
+            Instance {
+                id: i.id.clone(),
+                pose: groupforward_msgs::geometry_msgs::Pose {
+                    position: groupforward_msgs::geometry_msgs::Point {
+                        x: f64::from(centre.x),
+                        y: f64::from(centre.y),
+                        z: f64::from(centre.z),
+                    },
+                    orientation: groupforward_msgs::geometry_msgs::Quaternion {
+                        x: 0.0,
+                        y: 0.0,
+                        z: 0.0,
+                        w: 1.0,
+                    },
+                },
+                size: groupforward_msgs::geometry_msgs::Vector3 {
+                    x: f64::from(size.x),
+                    y: f64::from(size.y),
+                    z: f64::from(size.z),
+                },
+                point_count: i.gaussians.len() as u32,
+                confidence: i.confidence,
+                first_seen: time_of(i.first_seen_nanos),
+                last_seen: time_of(i.last_seen_nanos),
+                ..Default::default()
+            }
+        })
+        .collect()
+}
+
+impl Shared {
+    /// Replace the map and refresh the instance messages.
+    pub fn set_map(&mut self, map: SceneMap) {
+        self.instances = instance_messages(&map);
+        self.map = map;
+    }
+}
+
+fn map_path<'a>(shared: &'a Shared, requested: &'a str) -> std::result::Result<&'a str, String> {
+    if !requested.is_empty() {
+        return Ok(requested);
+    }
+    shared
+        .map_file
+        .as_deref()
+        .ok_or_else(|| "no path given and no map.file configured".to_owned())
+}
+
+fn handle_save(shared: &Mutex<Shared>, request: &[u8]) -> std::result::Result<Vec<u8>, String> {
+    let request: MapPathRequest = cdr::decode(request).map_err(|e| e.to_string())?;
+    // Serialise under the lock, write outside it: a slow disk never stalls the node loop.
+    let (path, bytes) = {
+        let s = shared.lock().map_err(|e| e.to_string())?;
+        let path = map_path(&s, &request.path).map(str::to_owned);
+        (path, persist::to_bytes(&s.map))
+    };
+    let response = match path.and_then(|path| {
+        persist::write_atomically(std::path::Path::new(&path), &bytes)
+            .map(|()| path)
+            .map_err(|e| e.to_string())
+    }) {
+        Ok(path) => MapResultResponse {
+            success: true,
+            message: format!("saved {} bytes to {path}", bytes.len()),
+        },
+        Err(message) => {
+            tracing::warn!("save_map failed: {message}");
+            MapResultResponse {
+                success: false,
+                message,
+            }
+        }
+    };
+    cdr::encode(&response).map_err(|e| e.to_string())
+}
+
+fn handle_load(shared: &Mutex<Shared>, request: &[u8]) -> std::result::Result<Vec<u8>, String> {
+    let request: MapPathRequest = cdr::decode(request).map_err(|e| e.to_string())?;
+    let (path, params) = {
+        let s = shared.lock().map_err(|e| e.to_string())?;
+        (map_path(&s, &request.path).map(str::to_owned), s.map.params)
+    };
+    let loaded = path.and_then(|path| {
+        persist::load(std::path::Path::new(&path), params)
+            .map(|map| (path, map))
+            .map_err(|e| e.to_string())
+    });
+    let response = match loaded {
+        Ok((path, map)) => {
+            let count = map.instances.len();
+            shared.lock().map_err(|e| e.to_string())?.set_map(map);
+            MapResultResponse {
+                success: true,
+                message: format!("loaded {count} instances from {path}"),
+            }
+        }
+        // The running map is untouched on any error.
+        Err(message) => {
+            tracing::warn!("load_map failed: {message}");
+            MapResultResponse {
+                success: false,
+                message,
+            }
+        }
+    };
+    cdr::encode(&response).map_err(|e| e.to_string())
 }
 
 fn handle_list(shared: &Mutex<Shared>, request: &[u8]) -> std::result::Result<Vec<u8>, String> {
@@ -263,7 +387,30 @@ pub fn run(
     shutdown: &AtomicBool,
 ) -> Result<NodeStatus> {
     let queue = Arc::new(InputQueue::new(config.ingest.queue_depth));
-    let shared = Arc::new(Mutex::new(Shared::default()));
+    let mut initial = Shared {
+        map_file: config.map.file.clone(),
+        ..Shared::default()
+    };
+    if let Some(file) = config
+        .map
+        .file
+        .as_deref()
+        .filter(|_| config.map.restore_on_start)
+    {
+        let path = std::path::Path::new(file);
+        if path.exists() {
+            match persist::load(path, initial.map.params) {
+                Ok(map) => {
+                    tracing::info!("restored {} instances from {file}", map.instances.len());
+                    initial.set_map(map);
+                }
+                Err(e) => {
+                    tracing::error!("cannot restore the map from {file}: {e}; starting empty")
+                }
+            }
+        }
+    }
+    let shared = Arc::new(Mutex::new(initial));
     let declared = declare(config, transport, &queue, &shared)?;
     let status_publisher = transport.advertise(&declared.status)?;
     tracing::info!(
@@ -377,6 +524,20 @@ pub fn declare(
         GetInstance::TYPE_NAME,
         Qos::default(),
     )?;
+    let save = Endpoint::new(
+        &resolve_name(ns, name, "~/save_map")?,
+        SaveMap::TYPE_NAME,
+        Qos::default(),
+    )?;
+    let load = Endpoint::new(
+        &resolve_name(ns, name, "~/load_map")?,
+        LoadMap::TYPE_NAME,
+        Qos::default(),
+    )?;
+    let s = shared.clone();
+    transport.serve(&save, Arc::new(move |req| handle_save(&s, req)))?;
+    let s = shared.clone();
+    transport.serve(&load, Arc::new(move |req| handle_load(&s, req)))?;
     let s = shared.clone();
     transport.serve(&list, Arc::new(move |req| handle_list(&s, req)))?;
     let s = shared.clone();
@@ -387,7 +548,7 @@ pub fn declare(
     Ok(Declared {
         subscriptions,
         status,
-        services: vec![list, get],
+        services: vec![list, get, save, load],
         json_prefix: prefix,
     })
 }
@@ -477,5 +638,101 @@ mod tests {
         assert!(!published.is_empty());
         let status: NodeStatus = cdr::decode(published.last().unwrap()).unwrap();
         assert_eq!(status.cameras[0].name, "front");
+    }
+
+    /// A map with one instance: a small cube of Gaussians.
+    fn one_instance_map() -> SceneMap {
+        use crate::graph::{FusionParams, WindowInstance};
+        use crate::recon::gaussians::Gaussians;
+        let mut g = Gaussians::with_dims(0, 0);
+        for i in 0..5 {
+            for j in 0..5 {
+                let p = glam::Vec3::new(2.0 + i as f32 * 0.05, j as f32 * 0.05, 0.5);
+                g.push(
+                    p,
+                    0.9,
+                    glam::Vec3::splat(0.02),
+                    glam::Quat::IDENTITY,
+                    glam::Vec3::ONE,
+                    &[],
+                    &[],
+                );
+            }
+        }
+        let mut map = SceneMap::new(FusionParams::default());
+        map.fuse(
+            vec![WindowInstance {
+                gaussians: g,
+                prototype: vec![1.0, 0.0],
+                support: 25,
+            }],
+            &[],
+            7,
+        )
+        .unwrap();
+        map
+    }
+
+    #[test]
+    fn map_services_save_load_and_restore_on_start_keeping_the_map_on_errors() {
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("map.gfmap");
+        persist::save(&one_instance_map(), &file).unwrap();
+        let mut config = Config::default();
+        config.map.file = Some(file.display().to_string());
+        let bus = MemoryTransport::new();
+        let handle = bus.clone();
+        let shutdown = Arc::new(AtomicBool::new(false));
+        let runner = {
+            let (config, shutdown) = (config.clone(), shutdown.clone());
+            std::thread::spawn(move || run(&config, &handle, &shutdown))
+        };
+        let deadline = Instant::now() + Duration::from_secs(5);
+        while bus.get_json("groupforward/default/status", b"").is_err() {
+            assert!(Instant::now() < deadline, "node did not start");
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        let list = |bus: &MemoryTransport| -> Vec<Instance> {
+            let reply = bus
+                .call(
+                    "/groupforward/list_instances",
+                    &cdr::encode(&ListInstancesRequest::default()).unwrap(),
+                )
+                .unwrap();
+            cdr::decode::<ListInstancesResponse>(&reply)
+                .unwrap()
+                .instances
+        };
+        let call = |service: &str, path: &str| -> MapResultResponse {
+            let request = cdr::encode(&MapPathRequest { path: path.into() }).unwrap();
+            cdr::decode(&bus.call(service, &request).unwrap()).unwrap()
+        };
+        // Restored on start.
+        let restored = list(&bus);
+        assert_eq!(restored.len(), 1);
+        assert_eq!(restored[0].id, "inst_000001");
+        let expected = one_instance_map().instances[0].gaussians.len() as u32;
+        assert_eq!(restored[0].point_count, expected);
+        // Save elsewhere, then a corrupt file fails to load and changes nothing.
+        let copy = dir.path().join("copy.gfmap");
+        assert!(call("/groupforward/save_map", &copy.display().to_string()).success);
+        let corrupt = dir.path().join("corrupt.gfmap");
+        let mut bytes = std::fs::read(&copy).unwrap();
+        let middle = bytes.len() / 2;
+        bytes[middle] ^= 1;
+        std::fs::write(&corrupt, bytes).unwrap();
+        let failed = call("/groupforward/load_map", &corrupt.display().to_string());
+        assert!(
+            !failed.success && failed.message.contains("corrupt"),
+            "{failed:?}"
+        );
+        assert_eq!(list(&bus), restored);
+        // The configured file is the default path; the copy loads back to the same map.
+        assert!(call("/groupforward/save_map", "").success);
+        assert!(call("/groupforward/load_map", &copy.display().to_string()).success);
+        assert_eq!(list(&bus), restored);
+        assert!(bus.call("/groupforward/save_map", b"bad").is_err());
+        shutdown.store(true, Ordering::Relaxed);
+        runner.join().unwrap().unwrap();
     }
 }
