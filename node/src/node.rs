@@ -270,17 +270,26 @@ fn handle_save(shared: &Mutex<Shared>, request: &[u8]) -> std::result::Result<Ve
         let path = map_path(&s, &request.path).map(str::to_owned);
         (path, persist::to_bytes(&s.map))
     };
-    let response = match path.and_then(|path| {
+    let outcome = path.and_then(|path| {
         persist::write_atomically(std::path::Path::new(&path), &bytes)
-            .map(|()| path)
+            .map(|()| format!("saved {} bytes to {path}", bytes.len()))
             .map_err(|e| e.to_string())
-    }) {
-        Ok(path) => MapResultResponse {
+    });
+    map_result("save_map", outcome)
+}
+
+/// A SaveMap / LoadMap response; failures are logged too.
+fn map_result(
+    service: &str,
+    outcome: std::result::Result<String, String>,
+) -> std::result::Result<Vec<u8>, String> {
+    let response = match outcome {
+        Ok(message) => MapResultResponse {
             success: true,
-            message: format!("saved {} bytes to {path}", bytes.len()),
+            message,
         },
         Err(message) => {
-            tracing::warn!("save_map failed: {message}");
+            tracing::warn!("{service} failed: {message}");
             MapResultResponse {
                 success: false,
                 message,
@@ -301,25 +310,16 @@ fn handle_load(shared: &Mutex<Shared>, request: &[u8]) -> std::result::Result<Ve
             .map(|map| (path, map))
             .map_err(|e| e.to_string())
     });
-    let response = match loaded {
+    let outcome = match loaded {
         Ok((path, map)) => {
             let count = map.instances.len();
             shared.lock().map_err(|e| e.to_string())?.set_map(map);
-            MapResultResponse {
-                success: true,
-                message: format!("loaded {count} instances from {path}"),
-            }
+            Ok(format!("loaded {count} instances from {path}"))
         }
         // The running map is untouched on any error.
-        Err(message) => {
-            tracing::warn!("load_map failed: {message}");
-            MapResultResponse {
-                success: false,
-                message,
-            }
-        }
+        Err(message) => Err(message),
     };
-    cdr::encode(&response).map_err(|e| e.to_string())
+    map_result("load_map", outcome)
 }
 
 fn handle_list(shared: &Mutex<Shared>, request: &[u8]) -> std::result::Result<Vec<u8>, String> {
