@@ -47,6 +47,7 @@ pub struct Config {
     pub ingest: IngestSection,
     pub status: StatusSection,
     pub models: ModelsSection,
+    pub window: crate::window::WindowSection,
     pub map: MapSection,
 }
 
@@ -60,6 +61,7 @@ impl Default for Config {
             ingest: IngestSection::default(),
             status: StatusSection::default(),
             models: ModelsSection::default(),
+            window: crate::window::WindowSection::default(),
             map: MapSection::default(),
         }
     }
@@ -233,6 +235,7 @@ impl Default for MapSection {
 }
 
 pub const DEFAULT_TEXT_ENCODER: &str = "models/all-MiniLM-L6-v2.toml";
+pub const DEFAULT_RECONSTRUCTION: &str = "models/groupforward-mini-rgbd.toml";
 pub const DEFAULT_MODEL_THREADS: usize = 2;
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -246,6 +249,8 @@ pub struct ModelsSection {
     pub threads: usize,
     /// Text encoder manifest (relative paths resolve against the working directory).
     pub text_encoder: std::path::PathBuf,
+    /// Reconstruction model manifest; `null` or a missing file: ingest only, no instances.
+    pub reconstruction: Option<std::path::PathBuf>,
 }
 
 impl Default for ModelsSection {
@@ -255,6 +260,7 @@ impl Default for ModelsSection {
             provider: crate::model::Provider::Cpu,
             threads: DEFAULT_MODEL_THREADS,
             text_encoder: DEFAULT_TEXT_ENCODER.into(),
+            reconstruction: Some(DEFAULT_RECONSTRUCTION.into()),
         }
     }
 }

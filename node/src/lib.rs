@@ -9,9 +9,10 @@
 //! - [`model`]: ONNX models through `ort` (runtime discovery, manifests, runners);
 //! - [`transport`]: rmw_zenoh-compatible zenoh transport (and an in-memory one for tests);
 //! - [`replay`]: publish a rosbag2 MCAP bag as a live robot would;
+//! - [`window`]: keyframes, one model pass per window, grouping into window instances;
 //! - [`demo`]: everything in one process over an embedded zenoh peer.
 //!
-//! Model passes, fusion into the scene graph, and referring land as further stages.
+//! Semantics per instance and referring land as further stages.
 
 pub mod config;
 pub mod demo;
@@ -23,3 +24,4 @@ pub mod node;
 pub mod recon;
 pub mod replay;
 pub mod transport;
+pub mod window;

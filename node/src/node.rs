@@ -16,8 +16,11 @@ use groupforward_msgs::{builtin_interfaces::Time, cdr, std_msgs::Header, RosMess
 
 use crate::config::Config;
 use crate::graph::{persist, SceneMap};
+use crate::group::GroupingParams;
 use crate::ingest::{Ingest, Reject, Rejection, Route, SyncedFrame};
+use crate::model::reconstruction::ReconstructionModel;
 use crate::transport::{Endpoint, Transport, TransportError};
+use crate::window::{window_pass, Keyframes};
 
 #[derive(Debug, thiserror::Error)]
 pub enum NodeError {
@@ -123,7 +126,7 @@ impl Node {
     }
 
     /// The newest completed frames, oldest first.
-    pub fn recent_frames(&self) -> impl Iterator<Item = &SyncedFrame> {
+    pub fn recent_frames(&self) -> impl DoubleEndedIterator<Item = &SyncedFrame> {
         self.recent.iter()
     }
 
@@ -412,6 +415,9 @@ pub fn run(
     }
     let shared = Arc::new(Mutex::new(initial));
     let declared = declare(config, transport, &queue, &shared)?;
+    let (windows, worker) = start_window_worker(config, &shared);
+    let mut keyframes: std::collections::HashMap<String, Keyframes> = Default::default();
+    let mut windows_dropped = 0u64;
     let status_publisher = transport.advertise(&declared.status)?;
     tracing::info!(
         subscriptions = declared.subscriptions.len(),
@@ -430,7 +436,28 @@ pub fn run(
         let (item, dropped) = queue.pop(Duration::from_millis(20));
         node.record_dropped(&dropped);
         if let Some((route, payload)) = item {
-            node.step(route, &payload);
+            let completed = node.step(route, &payload);
+            if let Some(windows) = &windows {
+                let fresh: Vec<&SyncedFrame> = node.recent_frames().rev().take(completed).collect();
+                for frame in fresh.into_iter().rev() {
+                    let store = keyframes
+                        .entry(frame.camera_name.clone())
+                        .or_insert_with(|| Keyframes::new(config.window.clone()));
+                    if store.offer(frame) {
+                        if let Some(window) = store.take_window() {
+                            // The worker is busy with the previous window: drop this one (counted)
+                            // rather than stall ingest.
+                            if windows.try_send(window).is_err() {
+                                windows_dropped += 1;
+                                tracing::debug!(
+                                    windows_dropped,
+                                    "window pass busy; window dropped"
+                                );
+                            }
+                        }
+                    }
+                }
+            }
         }
         let now = Instant::now();
         if now >= next_status {
@@ -449,6 +476,16 @@ pub fn run(
             None => break,
         }
     }
+    // Let the worker finish the windows it has, then stop it.
+    drop(windows);
+    if let Some(worker) = worker {
+        if worker.join().is_err() {
+            tracing::error!("the window worker panicked");
+        }
+    }
+    if windows_dropped > 0 {
+        tracing::info!(windows_dropped, "windows dropped while the model was busy");
+    }
     if !last.cameras.is_empty() || node.ingest.tf_received > 0 {
         last = publish_status(
             &mut node,
@@ -458,6 +495,74 @@ pub fn run(
         );
     }
     Ok(last)
+}
+
+/// Load the reconstruction model and start the thread that runs window passes and fuses their
+/// instances into the map. `None` when there is no usable model (logged; the node keeps serving).
+fn start_window_worker(
+    config: &Config,
+    shared: &Arc<Mutex<Shared>>,
+) -> (
+    Option<std::sync::mpsc::SyncSender<Vec<SyncedFrame>>>,
+    Option<std::thread::JoinHandle<()>>,
+) {
+    let Some(manifest) = config.models.reconstruction.as_ref() else {
+        return (None, None);
+    };
+    if !manifest.exists() {
+        tracing::warn!(
+            "no reconstruction model at {}: no instances will be built",
+            manifest.display()
+        );
+        return (None, None);
+    }
+    let options = crate::model::SessionOptions {
+        provider: config.models.provider,
+        intra_threads: config.models.threads,
+    };
+    let mut model = match crate::model::init_runtime(config.models.onnxruntime.as_deref())
+        .and_then(|_| ReconstructionModel::load(manifest, &options))
+    {
+        Ok(model) => model,
+        Err(e) => {
+            tracing::error!("reconstruction model unavailable: {e}; no instances will be built");
+            return (None, None);
+        }
+    };
+    tracing::info!("reconstruction model {} loaded", manifest.display());
+    let (sender, receiver) = std::sync::mpsc::sync_channel::<Vec<SyncedFrame>>(1);
+    let shared = shared.clone();
+    let grouping = GroupingParams::default();
+    let worker = std::thread::spawn(move || {
+        while let Ok(frames) = receiver.recv() {
+            let stamp = frames.last().map_or(0, |f| f.stamp_nanos);
+            let started = Instant::now();
+            match window_pass(&mut model, &frames, &grouping) {
+                Ok(output) => {
+                    let Ok(mut s) = shared.lock() else { return };
+                    let found = output.instances.len();
+                    match s.map.fuse(output.instances, &output.views, stamp) {
+                        Ok(report) => {
+                            let map = std::mem::take(&mut s.map);
+                            s.set_map(map);
+                            tracing::info!(
+                                instances = found,
+                                born = report.born,
+                                merged = report.merged,
+                                died = report.died,
+                                total = s.map.instances.len(),
+                                millis = started.elapsed().as_millis() as u64,
+                                "window fused"
+                            );
+                        }
+                        Err(e) => tracing::warn!("window not fused: {e}"),
+                    }
+                }
+                Err(e) => tracing::warn!("window pass failed: {e}"),
+            }
+        }
+    });
+    (Some(sender), Some(worker))
 }
 
 fn publish_status(

@@ -375,10 +375,17 @@ impl SceneMap {
                 for (j, mf) in map_footprints.iter().enumerate() {
                     let radius = 1.5 * wf.spacing.max(mf.spacing);
                     let overlap = wf.overlap(mf, radius);
-                    let similarity = cosine(&window[i].prototype, &self.instances[j].prototype);
-                    if overlap >= p.min_overlap && similarity >= p.min_similarity {
-                        let score =
-                            p.geometry_weight * overlap + (1.0 - p.geometry_weight) * similarity;
+                    // Without semantics (no semantic model yet), geometry alone decides.
+                    let (a, b) = (&window[i].prototype, &self.instances[j].prototype);
+                    let similarity = (!a.is_empty() && !b.is_empty()).then(|| cosine(a, b));
+                    if overlap >= p.min_overlap && similarity.is_none_or(|s| s >= p.min_similarity)
+                    {
+                        let score = match similarity {
+                            Some(similarity) => {
+                                p.geometry_weight * overlap + (1.0 - p.geometry_weight) * similarity
+                            }
+                            None => overlap,
+                        };
                         weights[(i, j)] = (score * scale) as i64;
                     }
                 }
