@@ -119,7 +119,8 @@ pub struct DemoReport {
     pub replayed_messages: u64,
     pub status: NodeStatus,
     pub malformed_published: u64,
-    pub instances: usize,
+    /// What `list_instances` answered at the end.
+    pub instances: Vec<groupforward_msgs::gf_msgs::Instance>,
     pub objects: Vec<GroundTruthObject>,
     /// A sample of the scene's generated referring expressions (one per relation type).
     pub expressions: Vec<Expression>,
@@ -312,14 +313,29 @@ pub fn run_demo(options: &DemoOptions) -> Result<DemoReport> {
         "~/list_instances",
     )
     .map_err(TransportError::from)?;
-    let instances = call_service::<ListInstances>(
-        &session,
-        domain,
-        &list_service,
-        &ListInstancesRequest::default(),
-        timeout,
-    )?;
-    let ListInstancesResponse { instances } = instances;
+    let list = || {
+        call_service::<ListInstances>(
+            &session,
+            domain,
+            &list_service,
+            &ListInstancesRequest::default(),
+            timeout,
+        )
+        .map(|r: ListInstancesResponse| r.instances)
+    };
+    // The window worker may still be fusing the last window: wait until the list settles.
+    let mut instances = list()?;
+    let settle_deadline = Instant::now() + timeout;
+    loop {
+        std::thread::sleep(Duration::from_millis(600));
+        let again = list()?;
+        let settled = again.len() == instances.len()
+            && again.iter().zip(&instances).all(|(a, b)| a.point_count == b.point_count);
+        instances = again;
+        if settled || Instant::now() >= settle_deadline {
+            break;
+        }
+    }
     shutdown.store(true, Ordering::Relaxed);
     match node_thread.join() {
         Ok(result) => {
@@ -350,7 +366,7 @@ pub fn run_demo(options: &DemoOptions) -> Result<DemoReport> {
         replayed_messages: replayed.published,
         status,
         malformed_published: 2,
-        instances: instances.len(),
+        instances,
         objects,
         expressions,
         vocabulary: match_vocabulary(DEMO_QUERIES),

@@ -236,10 +236,39 @@ fn print_report(report: &groupforward::demo::DemoReport) {
     for rejection in &report.status.rejections {
         println!("  rejected {:>3} x {}", rejection.count, rejection.reason);
     }
-    println!(
-        "  list_instances service answered: {} instances (grouping is not built yet)",
-        report.instances
-    );
+    if report.instances.is_empty() {
+        println!("  list_instances service answered: no instances (no reconstruction model loaded, see the log)");
+    } else {
+        println!(
+            "  list_instances service answered: {} instances (persistent id, box centre and size, Gaussians; nearest ground-truth object):",
+            report.instances.len()
+        );
+        for instance in &report.instances {
+            let p = &instance.pose.position;
+            let nearest = report
+                .objects
+                .iter()
+                .map(|(id, class, q)| {
+                    let d = ((p.x - q[0]).powi(2) + (p.y - q[1]).powi(2)).sqrt();
+                    (d, id, class)
+                })
+                .min_by(|a, b| a.0.total_cmp(&b.0));
+            let nearest = nearest.map_or(String::new(), |(d, id, class)| {
+                format!("#{id} {class} ({d:.2} m)")
+            });
+            println!(
+                "    {} at ({:.2}, {:.2}, {:.2}) size {:.2}x{:.2}x{:.2} m, {:>5} Gaussians; {nearest}",
+                instance.id,
+                p.x,
+                p.y,
+                p.z,
+                instance.size.x,
+                instance.size.y,
+                instance.size.z,
+                instance.point_count
+            );
+        }
+    }
     println!("  ground truth ({} objects):", report.objects.len());
     for (id, class, p) in &report.objects {
         println!(
