@@ -211,6 +211,9 @@ pub fn run_demo(options: &DemoOptions) -> Result<DemoReport> {
     let started = Instant::now();
     let mut config = Config::default();
     config.status.period_secs = 0.2;
+    // The shipped models, wherever the demo is started from.
+    let models = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../models");
+    config.models.reconstruction = Some(models.join("groupforward-mini-rgbd.toml"));
     let embedded = ZenohSection {
         connect: Vec::new(),
         ..ZenohSection::default()
@@ -330,7 +333,10 @@ pub fn run_demo(options: &DemoOptions) -> Result<DemoReport> {
         std::thread::sleep(Duration::from_millis(600));
         let again = list()?;
         let settled = again.len() == instances.len()
-            && again.iter().zip(&instances).all(|(a, b)| a.point_count == b.point_count);
+            && again
+                .iter()
+                .zip(&instances)
+                .all(|(a, b)| a.point_count == b.point_count);
         instances = again;
         if settled || Instant::now() >= settle_deadline {
             break;

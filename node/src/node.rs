@@ -415,10 +415,13 @@ pub fn run(
     }
     let shared = Arc::new(Mutex::new(initial));
     let declared = declare(config, transport, &queue, &shared)?;
+    let status_publisher = transport.advertise(&declared.status)?;
+    // Every interface is declared before the (slow) model load, so peers see the node at once.
     let (windows, worker) = start_window_worker(config, &shared);
+    let mut windows = windows;
     let mut keyframes: std::collections::HashMap<String, Keyframes> = Default::default();
     let mut windows_dropped = 0u64;
-    let status_publisher = transport.advertise(&declared.status)?;
+    let mut model_gone = false;
     tracing::info!(
         subscriptions = declared.subscriptions.len(),
         json = %declared.json_prefix,
@@ -446,18 +449,28 @@ pub fn run(
                     if store.offer(frame) {
                         if let Some(window) = store.take_window() {
                             // The worker is busy with the previous window: drop this one (counted)
-                            // rather than stall ingest.
-                            if windows.try_send(window).is_err() {
-                                windows_dropped += 1;
-                                tracing::debug!(
-                                    windows_dropped,
-                                    "window pass busy; window dropped"
-                                );
+                            // rather than stall ingest. A worker without a model has exited.
+                            match windows.try_send(window) {
+                                Ok(()) => {}
+                                Err(std::sync::mpsc::TrySendError::Full(_)) => {
+                                    windows_dropped += 1;
+                                    tracing::debug!(
+                                        windows_dropped,
+                                        "window pass busy; window dropped"
+                                    );
+                                }
+                                Err(std::sync::mpsc::TrySendError::Disconnected(_)) => {
+                                    model_gone = true;
+                                }
                             }
                         }
                     }
                 }
             }
+        }
+        if model_gone {
+            windows = None;
+            model_gone = false;
         }
         let now = Instant::now();
         if now >= next_status {
@@ -520,20 +533,24 @@ fn start_window_worker(
         provider: config.models.provider,
         intra_threads: config.models.threads,
     };
-    let mut model = match crate::model::init_runtime(config.models.onnxruntime.as_deref())
-        .and_then(|_| ReconstructionModel::load(manifest, &options))
-    {
-        Ok(model) => model,
-        Err(e) => {
-            tracing::error!("reconstruction model unavailable: {e}; no instances will be built");
-            return (None, None);
-        }
-    };
-    tracing::info!("reconstruction model {} loaded", manifest.display());
     let (sender, receiver) = std::sync::mpsc::sync_channel::<Vec<SyncedFrame>>(1);
     let shared = shared.clone();
     let grouping = GroupingParams::default();
+    let (library, manifest) = (config.models.onnxruntime.clone(), manifest.clone());
     let worker = std::thread::spawn(move || {
+        // Loaded here, not on the node loop: ingest and services run while the model loads.
+        let mut model = match crate::model::init_runtime(library.as_deref())
+            .and_then(|_| ReconstructionModel::load(&manifest, &options))
+        {
+            Ok(model) => model,
+            Err(e) => {
+                tracing::error!(
+                    "reconstruction model unavailable: {e}; no instances will be built"
+                );
+                return;
+            }
+        };
+        tracing::info!("reconstruction model {} loaded", manifest.display());
         while let Ok(frames) = receiver.recv() {
             let stamp = frames.last().map_or(0, |f| f.stamp_nanos);
             let started = Instant::now();

@@ -21,6 +21,12 @@ fn the_demo_replays_a_sim_recorded_bag_into_the_node() {
     assert_eq!(report.status.tf_rejected, 1, "the NaN transform");
     assert_eq!(report.replayed_messages, report.recorded.messages);
     assert_eq!(report.objects.len(), 5);
+    // The shipped reconstruction model ran: window passes produced persistent instances.
+    assert!(!report.instances.is_empty());
+    assert!(report
+        .instances
+        .iter()
+        .all(|i| i.id.starts_with("inst_") && i.point_count > 0));
     assert!(report.expressions.len() >= 5);
     for e in &report.expressions {
         assert!(e
