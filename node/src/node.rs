@@ -696,11 +696,14 @@ mod tests {
         assert!(queue.pop(Duration::from_millis(1)).0.is_none());
     }
 
-    #[test]
-    fn run_counts_frames_serves_and_publishes_status_over_memory_transport() {
-        let mut config = Config::default();
-        config.cameras[0].depth_topic = None;
-        config.status.period_secs = 0.05;
+    /// Run the node on an in-memory bus and wait until it answers its JSON API.
+    fn start(
+        config: &Config,
+    ) -> (
+        Arc<MemoryTransport>,
+        Arc<AtomicBool>,
+        std::thread::JoinHandle<Result<NodeStatus>>,
+    ) {
         let bus = MemoryTransport::new();
         let handle = bus.clone();
         let shutdown = Arc::new(AtomicBool::new(false));
@@ -708,12 +711,20 @@ mod tests {
             let (config, shutdown) = (config.clone(), shutdown.clone());
             std::thread::spawn(move || run(&config, &handle, &shutdown))
         };
-        // Wait until the node has subscribed.
         let deadline = Instant::now() + Duration::from_secs(5);
         while bus.get_json("groupforward/default/status", b"").is_err() {
             assert!(Instant::now() < deadline, "node did not start");
             std::thread::sleep(Duration::from_millis(5));
         }
+        (bus, shutdown, runner)
+    }
+
+    #[test]
+    fn run_counts_frames_serves_and_publishes_status_over_memory_transport() {
+        let mut config = Config::default();
+        config.cameras[0].depth_topic = None;
+        config.status.period_secs = 0.05;
+        let (bus, shutdown, runner) = start(&config);
         let image = Image {
             width: 2,
             height: 2,
@@ -802,18 +813,7 @@ mod tests {
         persist::save(&one_instance_map(), &file).unwrap();
         let mut config = Config::default();
         config.map.file = Some(file.display().to_string());
-        let bus = MemoryTransport::new();
-        let handle = bus.clone();
-        let shutdown = Arc::new(AtomicBool::new(false));
-        let runner = {
-            let (config, shutdown) = (config.clone(), shutdown.clone());
-            std::thread::spawn(move || run(&config, &handle, &shutdown))
-        };
-        let deadline = Instant::now() + Duration::from_secs(5);
-        while bus.get_json("groupforward/default/status", b"").is_err() {
-            assert!(Instant::now() < deadline, "node did not start");
-            std::thread::sleep(Duration::from_millis(5));
-        }
+        let (bus, shutdown, runner) = start(&config);
         let list = |bus: &MemoryTransport| -> Vec<Instance> {
             let reply = bus
                 .call(
