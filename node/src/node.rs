@@ -250,8 +250,13 @@ pub fn instance_messages(map: &SceneMap) -> Vec<Instance> {
 impl Shared {
     /// Replace the map and refresh the instance messages.
     pub fn set_map(&mut self, map: SceneMap) {
-        self.instances = instance_messages(&map);
         self.map = map;
+        self.refresh_instances();
+    }
+
+    /// Rebuild the instance messages after the map changed in place.
+    pub fn refresh_instances(&mut self) {
+        self.instances = instance_messages(&self.map);
     }
 }
 
@@ -560,8 +565,7 @@ fn start_window_worker(
                     let found = output.instances.len();
                     match s.map.fuse(output.instances, &output.views, stamp) {
                         Ok(report) => {
-                            let map = std::mem::take(&mut s.map);
-                            s.set_map(map);
+                            s.refresh_instances();
                             tracing::info!(
                                 instances = found,
                                 born = report.born,

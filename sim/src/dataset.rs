@@ -193,22 +193,19 @@ fn write_view(dir: &Path, index: usize, frame: usize, view: &SimView) -> Result<
         &millimetres,
         image::ExtendedColorType::L16,
     )?;
-    let instance = ne16(view.truth.instance.iter().copied());
-    bytes += save_png(
-        &dir.join(name("instance")),
-        w,
-        h,
-        &instance,
-        image::ExtendedColorType::L16,
-    )?;
-    let class = ne16(view.truth.class.iter().copied());
-    bytes += save_png(
-        &dir.join(name("class")),
-        w,
-        h,
-        &class,
-        image::ExtendedColorType::L16,
-    )?;
+    for (kind, ids) in [
+        ("instance", &view.truth.instance),
+        ("class", &view.truth.class),
+    ] {
+        let pixels = ne16(ids.iter().copied());
+        bytes += save_png(
+            &dir.join(name(kind)),
+            w,
+            h,
+            &pixels,
+            image::ExtendedColorType::L16,
+        )?;
+    }
     let c = &view.pinhole;
     let m = glam::DMat4::from_rotation_translation(view.rotation, view.position).transpose();
     let entry = ViewEntry {

@@ -78,16 +78,27 @@ impl Instance {
         (lo + hi) / 2.0
     }
 
+    /// Add Gaussians (voxel-merged, capped) and a prototype observed with `weight` (count-weighted
+    /// mean).
+    fn merge(&mut self, gaussians: &Gaussians, prototype: &[f32], weight: f64, p: FusionParams) {
+        let mut all = self.gaussians.clone();
+        all.extend(gaussians);
+        self.gaussians = capped(all, p.voxel, p.max_gaussians_per_instance);
+        let wa = self.prototype_weight;
+        for (a, b) in self.prototype.iter_mut().zip(prototype) {
+            *a = ((f64::from(*a) * wa + f64::from(*b) * weight) / (wa + weight).max(1e-12)) as f32;
+        }
+        self.prototype_weight = wa + weight;
+    }
+
     /// Fold `other` (a duplicate of this object) into this instance.
     fn absorb(&mut self, other: &Instance, p: FusionParams) {
-        let mut all = self.gaussians.clone();
-        all.extend(&other.gaussians);
-        self.gaussians = capped(all, p.voxel, p.max_gaussians_per_instance);
-        let (wa, wb) = (self.prototype_weight, other.prototype_weight);
-        for (a, b) in self.prototype.iter_mut().zip(&other.prototype) {
-            *a = ((f64::from(*a) * wa + f64::from(*b) * wb) / (wa + wb).max(1e-12)) as f32;
-        }
-        self.prototype_weight = wa + wb;
+        self.merge(
+            &other.gaussians,
+            &other.prototype,
+            other.prototype_weight,
+            p,
+        );
         self.confidence = self.confidence.max(other.confidence);
         self.observations += other.observations;
         self.first_seen_nanos = self.first_seen_nanos.min(other.first_seen_nanos);
@@ -424,14 +435,7 @@ impl SceneMap {
                     }
                     matched[j] = true;
                     let m = &mut self.instances[j];
-                    let mut all = m.gaussians.clone();
-                    all.extend(&w.gaussians);
-                    m.gaussians = capped(all, p.voxel, p.max_gaussians_per_instance);
-                    let (wa, wb) = (m.prototype_weight, w.support.max(1) as f64);
-                    for (a, b) in m.prototype.iter_mut().zip(&w.prototype) {
-                        *a = ((f64::from(*a) * wa + f64::from(*b) * wb) / (wa + wb)) as f32;
-                    }
-                    m.prototype_weight = wa + wb;
+                    m.merge(&w.gaussians, &w.prototype, w.support.max(1) as f64, p);
                     m.confidence = (m.confidence + p.confirm_gain).min(1.0);
                     m.observations += 1;
                     m.last_seen_nanos = stamp_nanos;
