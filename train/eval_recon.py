@@ -1,11 +1,20 @@
 """Validation metrics of a reconstruction model on a sim dataset split.
 
-Instance grouping as the node does it: HDBSCAN (Python `hdbscan`, min_cluster_size 80, min_samples 10)
-on the ℓ2-normalised predicted embeddings of all pixels of a window's views (every 2nd pixel), scored
-with ARI against the ground-truth instances (walls and floor = one instance; noise stays its own
-label). Depth: abs-rel and δ<1.25 over valid pixels.
+Instance grouping exactly as the node does it (node/src/group, GroupingParams::default): the
+ℓ2-normalised embeddings of all pixels of a window's views, HDBSCAN (min_cluster_size 60,
+min_samples 10, single cluster allowed) on an even-stride subsample of at most 20,000, then every
+pixel assigned to its nearest cluster centroid, or noise when that centroid is farther than 0.5.
+Scored with ARI against the ground-truth instances (walls and floor = one instance; noise is its
+own label). `ari_hdbscan` is HDBSCAN's own labels on the subsample (noise unassigned), for reference.
 
-  train/.venv/bin/python train/eval_recon.py --model train/runs/rgbd/model.pt --val data/val --mode rgbd
+Identical-looking close pairs: two objects of one class with the same colour whose boxes are at most
+0.15 m apart (touching included), both seen with ≥ 50 pixels in the window. For each, `pair_ari` is
+the ARI restricted to the two objects' pixels (1 = split exactly as the truth; 0 = merged or random).
+
+Depth: abs-rel and δ<1.25 over valid pixels. Training picks its checkpoint on the last 24 val windows
+(train_recon.py --val-windows); report the others (`--windows 76`) as held out from that choice.
+
+  train/.venv/bin/python train/eval_recon.py --model train/runs/rgbd/model.pt --val train/data/val --mode rgbd
 """
 
 import argparse
@@ -22,30 +31,79 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from gf.data import SimDataset  # noqa: E402
 from gf.model import GroupForwardMini  # noqa: E402
 
+MIN_CLUSTER_SIZE = 60
+MIN_SAMPLES = 10
+MAX_CLUSTER_POINTS = 20_000
+NOISE_DISTANCE = 0.5
+PAIR_GAP = 0.15
+PAIR_MIN_PIXELS = 50
+
+
+def node_grouping(embeddings):
+    """Labels per row of unit `embeddings` [N,D] as node/src/group `group` computes them; and
+    HDBSCAN's own labels on the subsample with the subsample's indices."""
+    n = embeddings.shape[0]
+    stride = max(1, -(-n // MAX_CLUSTER_POINTS))
+    sample = np.arange(0, n, stride)
+    raw = hdbscan.HDBSCAN(min_cluster_size=MIN_CLUSTER_SIZE, min_samples=MIN_SAMPLES,
+                          allow_single_cluster=True).fit_predict(embeddings[sample].astype(np.float64))
+    clusters = np.unique(raw[raw >= 0])
+    if clusters.size == 0:
+        return np.full(n, -1), raw, sample
+    centroids = np.stack([embeddings[sample][raw == c].mean(0) for c in clusters])
+    centroids /= np.maximum(np.linalg.norm(centroids, axis=1, keepdims=True), 1e-12)
+    distances = np.sqrt(np.maximum(
+        (embeddings ** 2).sum(1)[:, None] - 2 * embeddings @ centroids.T + (centroids ** 2).sum(1)[None], 0))
+    nearest = distances.argmin(1)
+    labels = np.where(distances[np.arange(n), nearest] <= NOISE_DISTANCE, nearest, -1)
+    return labels, raw, sample
+
+
+def identical_close_pairs(objects, truth):
+    """(id_a, id_b) of same-class same-colour objects within PAIR_GAP of each other, both visible."""
+    pixels = {o['instance_id']: int((truth == o['instance_id']).sum()) for o in objects}
+    pairs = []
+    for i, a in enumerate(objects):
+        for b in objects[i + 1:]:
+            if a['class_id'] != b['class_id'] or np.abs(np.subtract(a['color'], b['color'])).max() > 0.02:
+                continue
+            gap = np.maximum(0.0, np.maximum(np.subtract(a['bounds_min'], b['bounds_max']),
+                                             np.subtract(b['bounds_min'], a['bounds_max'])))
+            if np.linalg.norm(gap) <= PAIR_GAP and min(pixels[a['instance_id']], pixels[b['instance_id']]) >= PAIR_MIN_PIXELS:
+                pairs.append((a['instance_id'], b['instance_id']))
+    return pairs
+
 
 @torch.no_grad()
-def evaluate(model, dataset, mode, windows=None, stride=2, min_cluster_size=80, min_samples=10):
+def evaluate(model, dataset, mode, indices=None):
     model.eval()
-    aris, abs_rel, delta = [], [], []
-    count = len(dataset) if windows is None else min(windows, len(dataset))
-    for i in range(count):
+    aris, raw_aris, abs_rel, delta, pair_aris, clusters, instances = [], [], [], [], [], [], []
+    indices = list(range(len(dataset))) if indices is None else list(indices)
+    for i in indices:
         item = dataset[i]
         images = item['images'][None]
         points = item['points'][None] if mode == 'rgbd' else None
         depth, _, embeddings = model(images, points)
         e = embeddings[0].permute(0, 2, 3, 1).reshape(-1, embeddings.shape[2])
-        e = torch.nn.functional.normalize(e, dim=1).numpy()[::stride]
-        truth = item['instance'].reshape(-1).numpy()[::stride]
-        labels = hdbscan.HDBSCAN(min_cluster_size=min_cluster_size, min_samples=min_samples).fit_predict(
-            e.astype(np.float64))
+        e = torch.nn.functional.normalize(e, dim=1).numpy()
+        truth = item['instance'].reshape(-1).numpy()
+        labels, raw, sample = node_grouping(e)
         aris.append(adjusted_rand_score(truth, labels))
+        raw_aris.append(adjusted_rand_score(truth[sample], raw))
+        clusters.append(len(np.unique(labels[labels >= 0])))
+        instances.append(len(np.unique(truth)))
+        for a, b in identical_close_pairs(dataset.objects(i), truth):
+            mask = (truth == a) | (truth == b)
+            pair_aris.append(adjusted_rand_score(truth[mask], labels[mask]))
         target = item['depth']
         valid = target > 0
         ratio = depth[0][valid] / target[valid]
         abs_rel.append(((depth[0][valid] - target[valid]).abs() / target[valid]).mean().item())
         delta.append((torch.maximum(ratio, 1 / ratio) < 1.25).float().mean().item())
-    return {'ari': float(np.mean(aris)), 'abs_rel': float(np.mean(abs_rel)), 'delta1': float(np.mean(delta)),
-            'windows': count}
+    return {'ari': float(np.mean(aris)), 'ari_hdbscan': float(np.mean(raw_aris)),
+            'clusters': float(np.mean(clusters)), 'instances': float(np.mean(instances)),
+            'pairs': len(pair_aris), 'pair_ari': float(np.mean(pair_aris)) if pair_aris else None,
+            'abs_rel': float(np.mean(abs_rel)), 'delta1': float(np.mean(delta)), 'windows': len(indices)}
 
 
 def main():
@@ -53,13 +111,16 @@ def main():
     parser.add_argument('--model', required=True)
     parser.add_argument('--val', required=True)
     parser.add_argument('--mode', choices=['rgbd', 'rgb'], default='rgbd')
-    parser.add_argument('--windows', type=int, default=None)
+    parser.add_argument('--first', type=int, default=0, help='first val window scored')
+    parser.add_argument('--windows', type=int, default=None, help='how many (default: to the end)')
     parser.add_argument('--threads', type=int, default=2)
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     model = GroupForwardMini(mode=args.mode)
     model.load_state_dict(torch.load(args.model))
-    print(json.dumps(evaluate(model, SimDataset(args.val, args.mode), args.mode, args.windows)))
+    dataset = SimDataset(args.val, args.mode)
+    end = len(dataset) if args.windows is None else min(len(dataset), args.first + args.windows)
+    print(json.dumps(evaluate(model, dataset, args.mode, range(args.first, end))))
 
 
 if __name__ == '__main__':

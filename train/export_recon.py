@@ -3,7 +3,7 @@ check parity with PyTorch through onnxruntime (max abs diff <= 1e-4 for V = 2 an
 manifest the node checks the graph against (models/<name>.toml).
 
   train/.venv/bin/python train/export_recon.py --model train/runs/rgbd/model.pt --mode rgbd \\
-      --summary train/runs/rgbd/summary.json --name groupforward-mini-rgbd
+      --summary train/runs/rgbd/summary.json --report train/runs/rgbd/report.json --name groupforward-mini-rgbd
 """
 
 import argparse
@@ -28,6 +28,8 @@ def main():
     parser.add_argument('--mode', choices=['rgbd', 'rgb'], default='rgbd')
     parser.add_argument('--summary', required=True, help='summary.json of the training run')
     parser.add_argument('--name', required=True)
+    parser.add_argument('--report', required=True,
+                        help='eval_recon.py output (JSON) on the val windows held out from checkpoint selection')
     args = parser.parse_args()
     model = GroupForwardMini(mode=args.mode)
     model.load_state_dict(torch.load(args.model))
@@ -59,6 +61,7 @@ def main():
             worst = max(worst, float(np.abs(e.numpy() - g).max()))
     assert worst <= 1e-4, f'ONNX parity {worst} > 1e-4'
     best = summary['best']
+    report = json.loads(Path(args.report).read_text())
     losses = ('depth, photometric, direct and rendered instance losses' if summary.get('rendered_losses')
               else 'depth and direct instance losses only')
     size = onnx_path.stat().st_size
@@ -71,7 +74,7 @@ mode = "{args.mode}"
 input_height = {height}
 input_width = {width}
 embedding_dim = 8
-provenance = "trained from scratch on groupforward-sim train split ({summary['train_windows']} windows x 4 views, 128x96), {summary['steps']} steps, {summary['minutes']:.0f} min on {summary['threads']} CPU threads; {losses}; val ({best['windows']} windows): ARI {best['ari']:.3f}, depth abs-rel {best['abs_rel']:.3f}, delta1 {best['delta1']:.3f}; ONNX parity {worst:.1e}; {size / 1e6:.1f} MB"
+provenance = "trained from scratch on groupforward-sim train split ({summary['train_windows']} windows x 4 views, 128x96), checkpoint of step {best['step']} ({best['minutes']:.0f} min) of a {summary['steps']}-step, {summary['minutes']:.0f}-min run on {summary['threads']} CPU thread(s), picked by ARI on {best['windows']} val windows; {losses}{'; pseudo instance labels' if summary['args'].get('pseudo_labels') else ''}; benchmarks below on {report['windows']} other val windows; ONNX parity {worst:.1e}; {size / 1e6:.1f} MB"
 license = "Apache-2.0"
 
 [normalization]
@@ -94,6 +97,11 @@ shape = [1, "V", 11, "H", "W"]
 name = "embeddings"
 shape = [1, "V", 8, "H", "W"]
 '''
+    manifest += '\n[benchmarks]\n# train/eval_recon.py on the val windows held out from checkpoint selection.\n'
+    for key in ('ari', 'ari_hdbscan', 'pair_ari', 'pairs', 'clusters', 'instances', 'abs_rel', 'delta1', 'windows'):
+        if report.get(key) is not None:
+            manifest += f'val_{key} = {float(report[key]):.4f}\n'
+    manifest += f'size_mb = {size / 1e6:.2f}\nparameters_m = {parameter_count(model) / 1e6:.2f}\n'
     (MODELS / f'{args.name}.toml').write_text(manifest)
     print(f'wrote {onnx_path} ({size / 1e6:.1f} MB) and its manifest; parity {worst:.2e}')
 

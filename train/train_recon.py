@@ -14,6 +14,7 @@ Writes <out>/model.pt (best val ARI), <out>/log.csv (step, stage, losses, second
 
 import argparse
 import csv
+import math
 import json
 import sys
 import time
@@ -45,18 +46,25 @@ def main():
     parser.add_argument('--val', required=True)
     parser.add_argument('--mode', choices=['rgbd', 'rgb'], default='rgbd')
     parser.add_argument('--minutes', type=float, default=40.0, help='wall-clock budget')
-    parser.add_argument('--stages', type=float, nargs=3, default=[0.2, 0.3, 0.5],
+    parser.add_argument('--stages', type=float, nargs=3, default=[0.15, 0.25, 0.6],
                         help='budget shares of the three curriculum stages')
     parser.add_argument('--batch', type=int, default=2)
     parser.add_argument('--lr', type=float, default=2e-3)
+    parser.add_argument('--schedule', choices=['cosine', 'constant'], default='cosine',
+                        help='learning rate over the budget: cosine decay to 5%% of --lr, or constant')
     parser.add_argument('--threads', type=int, default=2)
     parser.add_argument('--eval-every', type=float, default=8.0, help='minutes between val evaluations')
-    parser.add_argument('--val-windows', type=int, default=24)
+    parser.add_argument('--val-windows', type=int, default=24,
+                        help='the last N val windows pick the checkpoint; the rest stay held out for the report')
     parser.add_argument('--seed', type=int, default=0)
     parser.add_argument('--no-rendered', action='store_true',
                         help='direct losses only (the ablation): no rasterized dice/focal/embedding/photometric terms')
     parser.add_argument('--render-gaussians', type=int, default=2048,
                         help='Gaussians per window the rendered losses rasterize (at 1/4 resolution)')
+    parser.add_argument('--pseudo-labels', default=None,
+                        help='train on these instance ids (train/make_pseudo_labels.py) instead of the ground truth')
+    parser.add_argument('--snapshot-every', type=int, default=0,
+                        help='also keep the weights every N steps (snapshot_<step>.pt), for equal-step comparisons')
     parser.add_argument('--out', required=True)
     args = parser.parse_args()
 
@@ -64,9 +72,10 @@ def main():
     torch.manual_seed(args.seed)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    train = SimDataset(args.train, args.mode)
+    train = SimDataset(args.train, args.mode, args.pseudo_labels)
     val = SimDataset(args.val, args.mode)
     assert train.split == 'train' and val.split == 'val', 'train and val must come from their own splits'
+    selection = range(max(0, len(val) - args.val_windows), len(val))
     model = GroupForwardMini(mode=args.mode)
     print(f'GroupForward-mini ({args.mode}): {parameter_count(model) / 1e6:.2f} M parameters; '
           f'{len(train)} train windows, {len(val)} val windows')
@@ -113,11 +122,18 @@ def main():
             else:
                 loss = l_depth + l_photo + LAMBDA_DIRECT * l_direct + LAMBDA_RENDER * l_render
             optimizer = optimizers[stage]
+            if args.schedule == 'cosine':
+                # One decay over the whole budget; stage 3 runs at half the rate (all weights move).
+                factor = 0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * elapsed / budget))
+                for group in optimizer.param_groups:
+                    group['lr'] = args.lr * factor * (0.5 if stage == 3 else 1.0)
             optimizer.zero_grad()
             loss.backward()
             torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
             optimizer.step()
             step += 1
+            if args.snapshot_every and step % args.snapshot_every == 0:
+                torch.save(model.state_dict(), out / f'snapshot_{step}.pt')
             writer.writerow([step, stage, f'{elapsed:.1f}', f'{loss.item():.5f}', f'{l_depth.item():.5f}',
                              f'{pull.item():.5f}', f'{push.item():.5f}', f'{l_render.item():.5f}',
                              f'{l_photo.item():.5f}'])
@@ -129,12 +145,12 @@ def main():
             now = time.perf_counter()
             if stage >= 2 and now - last_eval >= args.eval_every * 60.0:
                 last_eval = now
-                metrics = evaluate(model, val, args.mode, windows=args.val_windows)
+                metrics = evaluate(model, val, args.mode, selection)
                 print(f'  val: {metrics}', flush=True)
                 if metrics['ari'] > best['ari']:
                     best = dict(metrics, step=step, minutes=elapsed / 60)
                     torch.save(model.state_dict(), out / 'model.pt')
-    metrics = evaluate(model, val, args.mode, windows=args.val_windows)
+    metrics = evaluate(model, val, args.mode, selection)
     print(f'final val: {metrics}', flush=True)
     if metrics['ari'] > best['ari']:
         best = dict(metrics, step=step, minutes=(time.perf_counter() - started) / 60)

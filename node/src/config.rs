@@ -49,6 +49,7 @@ pub struct Config {
     pub models: ModelsSection,
     pub window: crate::window::WindowSection,
     pub map: MapSection,
+    pub semantics: SemanticsSection,
 }
 
 impl Default for Config {
@@ -63,6 +64,7 @@ impl Default for Config {
             models: ModelsSection::default(),
             window: crate::window::WindowSection::default(),
             map: MapSection::default(),
+            semantics: SemanticsSection::default(),
         }
     }
 }
@@ -234,8 +236,47 @@ impl Default for MapSection {
     }
 }
 
+/// How instances are named: hypotheses from the semantic prototype against a vocabulary.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SemanticsSection {
+    /// Phrases instances are named with (ObjectHypothesis class_id), embedded by the text encoder;
+    /// any words work. `other` catches walls, floor and unnamed things.
+    pub vocabulary: Vec<String>,
+    /// τ of the softmax over the vocabulary's cosines that gives hypothesis scores.
+    pub temperature: f32,
+    /// Hypotheses per instance, best first.
+    pub hypotheses: usize,
+}
+
+/// What walls, floor and anything unnamed are called (the semantic model's explicit `other` class).
+pub const OTHER_PHRASE: &str = "other";
+
+/// The simulator's object classes (ScanNet names) and `other`: what the shipped semantic model
+/// was trained on.
+pub fn default_vocabulary() -> Vec<String> {
+    groupforward_sim::library::classes()
+        .iter()
+        .map(|c| c.name.to_owned())
+        .chain([OTHER_PHRASE.to_owned()])
+        .collect()
+}
+pub const DEFAULT_SEMANTIC_TEMPERATURE: f32 = 0.05;
+pub const DEFAULT_HYPOTHESES: usize = 3;
+
+impl Default for SemanticsSection {
+    fn default() -> Self {
+        Self {
+            vocabulary: default_vocabulary(),
+            temperature: DEFAULT_SEMANTIC_TEMPERATURE,
+            hypotheses: DEFAULT_HYPOTHESES,
+        }
+    }
+}
+
 pub const DEFAULT_TEXT_ENCODER: &str = "models/all-MiniLM-L6-v2.toml";
 pub const DEFAULT_RECONSTRUCTION: &str = "models/groupforward-mini-rgbd.toml";
+pub const DEFAULT_SEMANTIC: &str = "models/semantic-mini.toml";
 pub const DEFAULT_MODEL_THREADS: usize = 2;
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -251,6 +292,9 @@ pub struct ModelsSection {
     pub text_encoder: std::path::PathBuf,
     /// Reconstruction model manifest; `null` or a missing file: ingest only, no instances.
     pub reconstruction: Option<std::path::PathBuf>,
+    /// Semantic model manifest (features per pixel, pooled into one prototype per instance);
+    /// `null` or a missing file: instances are unnamed and associate by geometry alone.
+    pub semantic: Option<std::path::PathBuf>,
 }
 
 impl Default for ModelsSection {
@@ -261,6 +305,7 @@ impl Default for ModelsSection {
             threads: DEFAULT_MODEL_THREADS,
             text_encoder: DEFAULT_TEXT_ENCODER.into(),
             reconstruction: Some(DEFAULT_RECONSTRUCTION.into()),
+            semantic: Some(DEFAULT_SEMANTIC.into()),
         }
     }
 }
@@ -342,6 +387,20 @@ impl Config {
         }
         if self.models.threads == 0 {
             return invalid("models.threads must be at least 1".into());
+        }
+        let t = self.semantics.temperature;
+        if !(t.is_finite() && t > 0.0) {
+            return invalid(format!(
+                "semantics.temperature must be a positive number, got {t}"
+            ));
+        }
+        if self
+            .semantics
+            .vocabulary
+            .iter()
+            .any(|p| p.trim().is_empty())
+        {
+            return invalid("semantics.vocabulary must not contain empty phrases".into());
         }
         if self.tf.world_frame.is_empty() {
             return invalid("tf.world_frame must not be empty".into());

@@ -214,6 +214,8 @@ pub fn run_demo(options: &DemoOptions) -> Result<DemoReport> {
     // The shipped models, wherever the demo is started from.
     let models = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../models");
     config.models.reconstruction = Some(models.join("groupforward-mini-rgbd.toml"));
+    config.models.semantic = Some(models.join("semantic-mini.toml"));
+    config.models.text_encoder = models.join("all-MiniLM-L6-v2.toml");
     let embedded = ZenohSection {
         connect: Vec::new(),
         ..ZenohSection::default()

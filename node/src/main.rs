@@ -240,7 +240,7 @@ fn print_report(report: &groupforward::demo::DemoReport) {
         println!("  list_instances service answered: no instances (no reconstruction model loaded, see the log)");
     } else {
         println!(
-            "  list_instances service answered: {} instances (persistent id, box centre and size, Gaussians; nearest ground-truth object):",
+            "  list_instances service answered: {} instances (persistent id, best name and score from the semantic model, box centre and size, Gaussians; nearest ground-truth object):",
             report.instances.len()
         );
         for instance in &report.instances {
@@ -256,8 +256,14 @@ fn print_report(report: &groupforward::demo::DemoReport) {
             let nearest = nearest.map_or(String::new(), |(d, id, class)| {
                 format!("#{id} {class} ({d:.2} m)")
             });
+            let name = instance
+                .hypotheses
+                .first()
+                .map_or("(unnamed)".to_owned(), |h| {
+                    format!("{} {:.2}", h.class_id, h.score)
+                });
             println!(
-                "    {} at ({:.2}, {:.2}, {:.2}) size {:.2}x{:.2}x{:.2} m, {:>5} Gaussians; {nearest}",
+                "    {} {name:<18} at ({:.2}, {:.2}, {:.2}) size {:.2}x{:.2}x{:.2} m, {:>5} Gaussians; {nearest}",
                 instance.id,
                 p.x,
                 p.y,

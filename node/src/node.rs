@@ -12,13 +12,17 @@ use groupforward_msgs::gf_msgs::{
 };
 use groupforward_msgs::rmw_zenoh::{resolve_name, Qos};
 use groupforward_msgs::services::{GetInstance, ListInstances, LoadMap, SaveMap};
+use groupforward_msgs::vision_msgs::ObjectHypothesis;
 use groupforward_msgs::{builtin_interfaces::Time, cdr, std_msgs::Header, RosMessage, RosService};
 
 use crate::config::Config;
 use crate::graph::{persist, SceneMap};
+use crate::group::semantics::Vocabulary;
 use crate::group::GroupingParams;
 use crate::ingest::{Ingest, Reject, Rejection, Route, SyncedFrame};
 use crate::model::reconstruction::ReconstructionModel;
+use crate::model::semantic::SemanticModel;
+use crate::model::text::TextEncoder;
 use crate::transport::{Endpoint, Transport, TransportError};
 use crate::window::{window_pass, Keyframes};
 
@@ -204,14 +208,23 @@ pub struct Shared {
     pub instances: Vec<Instance>,
     /// Default snapshot file (`map.file`).
     pub map_file: Option<String>,
+    /// Names for instances (set once the text encoder has embedded `semantics.vocabulary`).
+    pub vocabulary: Option<Vocabulary>,
+    /// Hypotheses per instance message.
+    pub hypotheses: usize,
 }
 
 fn time_of(nanos: i64) -> Time {
     Time::from_nanos(nanos)
 }
 
-/// The map's instances as `groupforward_msgs/Instance` (axis-aligned boxes in the map frame).
-pub fn instance_messages(map: &SceneMap) -> Vec<Instance> {
+/// The map's instances as `groupforward_msgs/Instance` (axis-aligned boxes in the map frame), named
+/// by the `hypotheses` best phrases of `vocabulary` for their semantic prototype.
+pub fn instance_messages(
+    map: &SceneMap,
+    vocabulary: Option<&Vocabulary>,
+    hypotheses: usize,
+) -> Vec<Instance> {
     map.instances
         .iter()
         .map(|i| {
@@ -219,6 +232,15 @@ pub fn instance_messages(map: &SceneMap) -> Vec<Instance> {
             let (centre, size) = ((lo + hi) / 2.0, hi - lo);
             Instance {
                 id: i.id.clone(),
+                hypotheses: vocabulary
+                    .map(|v| v.hypotheses(&i.prototype, hypotheses))
+                    .unwrap_or_default()
+                    .into_iter()
+                    .map(|(class_id, score)| ObjectHypothesis {
+                        class_id,
+                        score: f64::from(score),
+                    })
+                    .collect(),
                 pose: groupforward_msgs::geometry_msgs::Pose {
                     position: groupforward_msgs::geometry_msgs::Point {
                         x: f64::from(centre.x),
@@ -256,7 +278,7 @@ impl Shared {
 
     /// Rebuild the instance messages after the map changed in place.
     pub fn refresh_instances(&mut self) {
-        self.instances = instance_messages(&self.map);
+        self.instances = instance_messages(&self.map, self.vocabulary.as_ref(), self.hypotheses);
     }
 }
 
@@ -397,6 +419,7 @@ pub fn run(
     let queue = Arc::new(InputQueue::new(config.ingest.queue_depth));
     let mut initial = Shared {
         map_file: config.map.file.clone(),
+        hypotheses: config.semantics.hypotheses,
         ..Shared::default()
     };
     if let Some(file) = config
@@ -542,6 +565,8 @@ fn start_window_worker(
     let shared = shared.clone();
     let grouping = GroupingParams::default();
     let (library, manifest) = (config.models.onnxruntime.clone(), manifest.clone());
+    let models = config.models.clone();
+    let semantics = config.semantics.clone();
     let worker = std::thread::spawn(move || {
         // Loaded here, not on the node loop: ingest and services run while the model loads.
         let mut model = match crate::model::init_runtime(library.as_deref())
@@ -556,11 +581,15 @@ fn start_window_worker(
             }
         };
         tracing::info!("reconstruction model {} loaded", manifest.display());
+        let mut semantic = load_semantics(&models, &semantics, &options, &shared);
         while let Ok(frames) = receiver.recv() {
             let stamp = frames.last().map_or(0, |f| f.stamp_nanos);
             let started = Instant::now();
-            match window_pass(&mut model, &frames, &grouping) {
+            match window_pass(&mut model, semantic.as_mut(), &frames, &grouping) {
                 Ok(output) => {
+                    if let Some(e) = &output.semantics_error {
+                        tracing::warn!("window without semantics: {e}");
+                    }
                     let Ok(mut s) = shared.lock() else { return };
                     let found = output.instances.len();
                     match s.map.fuse(output.instances, &output.views, stamp) {
@@ -584,6 +613,54 @@ fn start_window_worker(
         }
     });
     (Some(sender), Some(worker))
+}
+
+/// Load the semantic model and embed the vocabulary with the text encoder (into `shared`). Either
+/// may be missing or broken: the node then builds unnamed instances and says so once.
+fn load_semantics(
+    models: &crate::config::ModelsSection,
+    semantics: &crate::config::SemanticsSection,
+    options: &crate::model::SessionOptions,
+    shared: &Mutex<Shared>,
+) -> Option<SemanticModel> {
+    let manifest = models.semantic.as_ref()?;
+    if !manifest.exists() {
+        tracing::warn!(
+            "no semantic model at {}: instances will be unnamed",
+            manifest.display()
+        );
+        return None;
+    }
+    let model = match SemanticModel::load(manifest, options) {
+        Ok(model) => model,
+        Err(e) => {
+            tracing::error!("semantic model unavailable: {e}; instances will be unnamed");
+            return None;
+        }
+    };
+    let vocabulary = TextEncoder::load(&models.text_encoder, options).and_then(|mut encoder| {
+        let embeddings = semantics
+            .vocabulary
+            .iter()
+            .map(|phrase| encoder.embed(phrase))
+            .collect::<crate::model::Result<Vec<_>>>()?;
+        Ok(Vocabulary {
+            phrases: semantics.vocabulary.clone(),
+            embeddings,
+            temperature: semantics.temperature,
+        })
+    });
+    match vocabulary {
+        Ok(vocabulary) => {
+            if let Ok(mut s) = shared.lock() {
+                s.vocabulary = Some(vocabulary);
+                s.refresh_instances();
+            }
+        }
+        Err(e) => tracing::error!("text encoder unavailable: {e}; instances will be unnamed"),
+    }
+    tracing::info!("semantic model {} loaded", manifest.display());
+    Some(model)
 }
 
 fn publish_status(

@@ -11,9 +11,11 @@ use std::collections::VecDeque;
 use serde::{Deserialize, Serialize};
 
 use crate::graph::{Keyframe, WindowInstance, WindowView};
+use crate::group::semantics::{prototypes, LabelledView};
 use crate::group::{group, GroupError, GroupingParams};
 use crate::ingest::SyncedFrame;
-use crate::model::reconstruction::{resized_camera, ReconstructionModel, View};
+use crate::model::reconstruction::{lifted_pixels, resized_camera, ReconstructionModel, View};
+use crate::model::semantic::{DenseFeatures, SemanticModel};
 use crate::model::ModelError;
 use crate::recon::gaussians::Gaussians;
 
@@ -121,13 +123,17 @@ pub struct WindowOutput {
     pub views: Vec<WindowView>,
     pub gaussians: usize,
     pub noise: usize,
+    /// Why this window's instances carry no semantic prototype, when a semantic model was given
+    /// but failed (the window is kept: geometry alone then associates it).
+    pub semantics_error: Option<String>,
 }
 
-/// Run the model on `frames`, group the embeddings, and split the Gaussians by instance.
-/// Instances carry no semantic prototype until the semantic model lands (fusion then associates
-/// by geometry alone).
+/// Run the model on `frames`, group the embeddings, and split the Gaussians by instance. With a
+/// semantic model, each instance also gets its prototype: the masked mean of the views' semantic
+/// features over the instance's pixels (§5.5); without one, fusion associates by geometry alone.
 pub fn window_pass(
     model: &mut ReconstructionModel,
+    semantic: Option<&mut SemanticModel>,
     frames: &[SyncedFrame],
     grouping: &GroupingParams,
 ) -> Result<WindowOutput, WindowError> {
@@ -166,16 +172,37 @@ pub fn window_pass(
             &[],
         );
     }
+    let (w, h) = (prediction.width, prediction.height);
+    let (mut instance_prototypes, mut semantics_error) = (Vec::new(), None);
+    if let Some(semantic) = semantic {
+        let pixels = lifted_pixels(&prediction);
+        if pixels.len() != grouped.labels.len() {
+            semantics_error = Some(format!(
+                "{} labels for {} lifted pixels",
+                grouped.labels.len(),
+                pixels.len()
+            ));
+        } else {
+            let mut pixel_labels = vec![-1i32; prediction.views * w * h];
+            for (&pixel, &label) in pixels.iter().zip(&grouped.labels) {
+                pixel_labels[pixel] = label;
+            }
+            match instance_semantics(semantic, frames, &pixel_labels, (w, h), clusters) {
+                Ok(found) => instance_prototypes = found,
+                Err(e) => semantics_error = Some(e.to_string()),
+            }
+        }
+    }
     let instances = per_instance
         .into_iter()
-        .filter(|g| !g.is_empty())
-        .map(|g| WindowInstance {
+        .enumerate()
+        .filter(|(_, g)| !g.is_empty())
+        .map(|(k, g)| WindowInstance {
             support: g.len(),
             gaussians: g,
-            prototype: Vec::new(),
+            prototype: instance_prototypes.get(k).cloned().unwrap_or_default(),
         })
         .collect();
-    let (w, h) = (prediction.width, prediction.height);
     let window_views = frames
         .iter()
         .enumerate()
@@ -193,5 +220,55 @@ pub fn window_pass(
         views: window_views,
         gaussians: gaussians.len(),
         noise,
+        semantics_error,
     })
+}
+
+/// Prototypes of `clusters` instances from per-pixel labels at the model resolution (`size`,
+/// view-major); each view's labels are sampled at its feature pixels' centres. An instance no
+/// feature pixel sees gets an empty prototype.
+fn instance_semantics(
+    semantic: &mut SemanticModel,
+    frames: &[SyncedFrame],
+    pixel_labels: &[i32],
+    (width, height): (usize, usize),
+    clusters: usize,
+) -> Result<Vec<Vec<f32>>, WindowError> {
+    let features: Vec<DenseFeatures> = frames
+        .iter()
+        .map(|f| semantic.features(&f.rgb))
+        .collect::<Result<_, _>>()?;
+    let labels: Vec<Vec<i32>> = features
+        .iter()
+        .enumerate()
+        .map(|(v, f)| {
+            let view = &pixel_labels[v * width * height..(v + 1) * width * height];
+            let mut out = Vec::with_capacity(f.width * f.height);
+            for fy in 0..f.height {
+                let y = (((fy as f64 + 0.5) * height as f64 / f.height as f64) as usize)
+                    .min(height - 1);
+                for fx in 0..f.width {
+                    let x = (((fx as f64 + 0.5) * width as f64 / f.width as f64) as usize)
+                        .min(width - 1);
+                    out.push(view[y * width + x]);
+                }
+            }
+            out
+        })
+        .collect();
+    let views: Vec<LabelledView<'_>> = labels
+        .iter()
+        .zip(&features)
+        .map(|(labels, f)| LabelledView {
+            labels,
+            features: &f.data,
+        })
+        .collect();
+    let (found, counts) = prototypes(&views, semantic.channels(), clusters)
+        .map_err(|e| ModelError::Input(e.to_string()))?;
+    Ok(found
+        .into_iter()
+        .zip(counts)
+        .map(|(p, count)| if count > 0 { p } else { Vec::new() })
+        .collect())
 }

@@ -123,6 +123,31 @@ fn same_place_different_meaning_is_a_new_instance() {
 }
 
 #[test]
+fn an_instance_born_without_semantics_takes_the_first_prototype_it_is_merged_with() {
+    let mut map = SceneMap::new(FusionParams::default());
+    let mut unnamed = instance(Vec3::new(3.0, 0.0, 0.0), CHAIR);
+    unnamed.prototype.clear();
+    map.fuse(vec![unnamed], &[view(DVec3::ZERO, 1, 3.0)], 1)
+        .unwrap();
+    assert!(map.instances[0].prototype.is_empty());
+    let report = map
+        .fuse(
+            vec![instance(Vec3::new(3.0, 0.0, 0.0), CHAIR)],
+            &[view(DVec3::ZERO, 2, 3.0)],
+            2,
+        )
+        .unwrap();
+    assert_eq!((report.merged, report.born), (1, 0));
+    assert_eq!(map.instances[0].prototype, CHAIR.to_vec());
+    // A later window without semantics keeps what the instance has.
+    let mut unnamed = instance(Vec3::new(3.0, 0.0, 0.0), CHAIR);
+    unnamed.prototype.clear();
+    map.fuse(vec![unnamed], &[view(DVec3::ZERO, 3, 3.0)], 3)
+        .unwrap();
+    assert_eq!(map.instances[0].prototype, CHAIR.to_vec());
+}
+
+#[test]
 fn instances_missed_where_visible_decay_and_die_but_occluded_ones_live() {
     let params = FusionParams::default();
     let mut map = SceneMap::new(params);

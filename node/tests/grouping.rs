@@ -290,3 +290,47 @@ mod semantics {
         assert!(out.features.iter().all(|f| f.is_finite()));
     }
 }
+
+fn vocabulary(temperature: f32) -> groupforward::group::semantics::Vocabulary {
+    groupforward::group::semantics::Vocabulary {
+        phrases: vec!["chair".into(), "table".into(), "other".into()],
+        embeddings: vec![
+            vec![1.0, 0.0, 0.0],
+            vec![0.0, 1.0, 0.0],
+            vec![0.0, 0.0, 1.0],
+        ],
+        temperature,
+    }
+}
+
+#[test]
+fn hypotheses_rank_phrases_by_prototype_cosine() {
+    let names = vocabulary(0.05).hypotheses(&[0.2, 0.9, 0.1], 2);
+    assert_eq!(names.len(), 2);
+    assert_eq!(names[0].0, "table");
+    assert!(names[0].1 > names[1].1 && names[0].1 <= 1.0 && names[1].1 > 0.0);
+    // Scale does not matter: the prototype is a mean of unit features, not unit itself.
+    let scaled = vocabulary(0.05).hypotheses(&[0.02, 0.09, 0.01], 2);
+    assert_eq!(names, scaled);
+}
+
+#[test]
+fn hypotheses_of_zero_or_empty_prototypes_are_empty() {
+    assert!(vocabulary(0.05).hypotheses(&[0.0, 0.0, 0.0], 3).is_empty());
+    assert!(vocabulary(0.05).hypotheses(&[], 3).is_empty());
+    assert!(vocabulary(0.05)
+        .hypotheses(&[f32::NAN, 0.0, 0.0], 3)
+        .is_empty());
+}
+
+#[test]
+fn hypothesis_scores_stay_finite_at_tiny_temperatures() {
+    for temperature in [1e-12, 1e-6, 1e-3] {
+        let names = vocabulary(temperature).hypotheses(&[1.0, 0.999, 0.0], 3);
+        assert_eq!(names.len(), 3);
+        assert!(names.iter().all(|(_, s)| s.is_finite()));
+        let total: f32 = names.iter().map(|(_, s)| s).sum();
+        assert!((total - 1.0).abs() < 1e-4, "scores sum to {total}");
+        assert_eq!(names[0].0, "chair");
+    }
+}

@@ -76,7 +76,7 @@ fn a_window_pass_turns_model_outputs_into_instances_and_views() {
         },
         ..Default::default()
     };
-    let out = window_pass(&mut model, &frames, &grouping).unwrap();
+    let out = window_pass(&mut model, None, &frames, &grouping).unwrap();
     // The fixture works at 6×4: 24 pixel-aligned Gaussians per view.
     assert_eq!(out.gaussians, 4 * 24);
     assert_eq!(out.views.len(), 4);

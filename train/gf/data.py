@@ -26,8 +26,10 @@ def load_png(path):
 class SimDataset(torch.utils.data.Dataset):
     """One item = one scene's window of V views."""
 
-    def __init__(self, root, mode='rgbd'):
+    def __init__(self, root, mode='rgbd', pseudo_labels=None):
         self.root = Path(root)
+        # Instance ids from train/make_pseudo_labels.py instead of the ground truth.
+        self.pseudo_labels = Path(pseudo_labels) if pseudo_labels else None
         self.manifest = json.loads((self.root / 'dataset.json').read_text())
         self.scenes = list(self.manifest['scenes'])
         self.mode = mode
@@ -35,6 +37,10 @@ class SimDataset(torch.utils.data.Dataset):
 
     def __len__(self):
         return len(self.scenes)
+
+    def objects(self, index):
+        """The scene's objects (instance id, class, colour, world bounds) from its cameras.json."""
+        return json.loads((self.root / self.scenes[index] / 'cameras.json').read_text())['objects']
 
     def __getitem__(self, index):
         scene = self.root / self.scenes[index]
@@ -52,7 +58,9 @@ class SimDataset(torch.utils.data.Dataset):
         item = {
             'images': torch.from_numpy(np.ascontiguousarray(rgb)),
             'depth': torch.from_numpy(depth),
-            'instance': torch.from_numpy(np.stack(instance)),
+            'instance': torch.from_numpy(
+                np.load(self.pseudo_labels / f'{self.scenes[index]}.npy').astype(np.int64) if self.pseudo_labels
+                else np.stack(instance)),
             'class': torch.from_numpy(np.stack(klass)),
             'k': torch.from_numpy(np.stack(intrinsics)),
             'world_from_camera': torch.from_numpy(np.stack(poses)),

@@ -5,8 +5,8 @@ U-Net decoder, and three heads (DESIGN §4 contract):
 - depth [B,V,H,W] in metres (exp of the head, so always positive);
 - gaussians [B,V,11,H,W] = opacity (sigmoid), scale (3, softplus, pixels at unit depth), rotation (4,
   unit quaternion xyzw in the camera frame), colour residual (3, 0.2·tanh);
-- embeddings [B,V,8,H,W]: from multi-scale decoder features and the predicted (log) depth, computed
-  at half resolution and upsampled.
+- embeddings [B,V,8,H,W]: from multi-scale decoder features, the predicted (log) depth and the raw
+  input (colour; world XYZ in RGB-D mode), computed at half resolution and upsampled.
 
 RGB-D mode (the node's default) takes `points` (world XYZ from sensor depth, centred and scaled as
 gf.data.world_points does) next to `images`; RGB mode (the paper's setting) takes images only and the
@@ -88,7 +88,7 @@ class GroupForwardMini(nn.Module):
         self.gaussian_head = nn.Conv2d(c[0], 11, 3, padding=1)
         # At half resolution (a quarter of the cost), upsampled bilinearly.
         self.instance_head = nn.Sequential(
-            nn.Conv2d(c[0] + c[0] + c[1] + 1, 64, 3, padding=1),
+            nn.Conv2d(c[0] + c[0] + c[1] + 1 + cin, 64, 3, padding=1),
             nn.GELU(),
             nn.Conv2d(64, 64, 3, padding=1),
             nn.GELU(),
@@ -134,7 +134,9 @@ class GroupForwardMini(nn.Module):
         residual = 0.2 * torch.tanh(raw[:, 8:11])
         gaussians = torch.cat([opacity, scale, rotation, residual], dim=1)
         down = lambda t: F.avg_pool2d(t, 2)  # noqa: E731
-        features = torch.cat([down(d0), d1, up(d2), down(log_depth)], dim=1)
+        # The raw input (colour, and world XYZ in RGB-D mode) goes straight in as well: instances are
+        # compact in 3D, and the decoder's features are shaped by the depth loss first (curriculum).
+        features = torch.cat([down(d0), d1, up(d2), down(log_depth), down(x)], dim=1)
         embeddings = F.interpolate(self.instance_head(features), scale_factor=2.0, mode='bilinear',
                                    align_corners=False)
         shape = lambda t: t.reshape(b, v, *t.shape[1:])  # noqa: E731

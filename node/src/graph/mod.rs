@@ -84,6 +84,15 @@ impl Instance {
         let mut all = self.gaussians.clone();
         all.extend(gaussians);
         self.gaussians = capped(all, p.voxel, p.max_gaussians_per_instance);
+        if self.prototype.is_empty() {
+            // First semantics for an instance born without them (e.g. restored from an older map).
+            self.prototype = prototype.to_vec();
+            self.prototype_weight = if prototype.is_empty() { 0.0 } else { weight };
+            return;
+        }
+        if prototype.is_empty() {
+            return;
+        }
         let wa = self.prototype_weight;
         for (a, b) in self.prototype.iter_mut().zip(prototype) {
             *a = ((f64::from(*a) * wa + f64::from(*b) * weight) / (wa + weight).max(1e-12)) as f32;

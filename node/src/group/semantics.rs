@@ -156,3 +156,47 @@ pub fn propagate(
         features,
     })
 }
+
+/// Names for instances: phrases with their text embeddings. An instance's hypotheses are the
+/// phrases closest to its prototype, scored by a softmax over the whole vocabulary of cosine / τ.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Vocabulary {
+    pub phrases: Vec<String>,
+    pub embeddings: Vec<Vec<f32>>,
+    pub temperature: f32,
+}
+
+impl Vocabulary {
+    /// The `count` best phrases for `prototype`, best first, with their softmax scores. Empty when
+    /// the prototype is empty or zero, or the vocabulary is.
+    pub fn hypotheses(&self, prototype: &[f32], count: usize) -> Vec<(String, f32)> {
+        let norm = prototype.iter().map(|v| v * v).sum::<f32>().sqrt();
+        if self.phrases.is_empty() || !(norm.is_finite() && norm > 1e-12) {
+            return Vec::new();
+        }
+        let cosines: Vec<f32> = self
+            .embeddings
+            .iter()
+            .map(|e| crate::model::text::cosine(prototype, e))
+            .collect();
+        // Softmax with the maximum subtracted: finite for any τ > 0, however small.
+        let temperature = self.temperature.max(1e-6);
+        let top = cosines.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+        let weights: Vec<f32> = cosines
+            .iter()
+            .map(|c| ((c - top) / temperature).exp())
+            .collect();
+        let total: f32 = weights.iter().sum();
+        let mut ranked: Vec<(usize, f32)> = weights
+            .iter()
+            .enumerate()
+            .map(|(i, w)| (i, w / total))
+            .collect();
+        ranked.sort_by(|a, b| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0)));
+        ranked
+            .into_iter()
+            .take(count)
+            .map(|(i, score)| (self.phrases[i].clone(), score))
+            .collect()
+    }
+}

@@ -7,6 +7,7 @@
 
 pub mod manifest;
 pub mod reconstruction;
+pub mod semantic;
 pub mod text;
 
 use std::path::{Path, PathBuf};

@@ -120,6 +120,19 @@ fn resize_depth(depth: &DepthImage, width: usize, height: usize) -> Vec<f32> {
     out
 }
 
+/// Flat pixel index (view-major, row-major at the model resolution) of every Gaussian that
+/// [`ReconstructionModel::to_gaussians`] lifts, in its order: `lift` skips pixels without a finite
+/// positive depth.
+pub fn lifted_pixels(prediction: &Prediction) -> Vec<usize> {
+    prediction
+        .depth
+        .iter()
+        .enumerate()
+        .filter(|(_, d)| d.is_finite() && **d > 0.0)
+        .map(|(i, _)| i)
+        .collect()
+}
+
 impl ReconstructionModel {
     /// Load the model a manifest describes and check the graph against the manifest.
     pub fn load(manifest_path: &Path, options: &SessionOptions) -> Result<Self> {

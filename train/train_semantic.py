@@ -1,0 +1,215 @@
+"""Train Semantic-mini on simulator datasets (DESIGN §4: the LSeg role) and score it on val.
+
+Per-pixel softmax over the label set's text embeddings (the node's int8 MiniLM; names and, as a
+second softmax, descriptions; class 0 = `other`), cosines scaled by a learned logit scale, class
+weights (median frequency / frequency)^½ so small objects count. Logits are computed at the
+features' half resolution and upsampled to the label maps.
+
+  train/.venv/bin/python train/train_semantic.py --train train/data/train --val train/data/val \\
+      --minutes 45 --out train/runs/semantic
+
+Val metrics (`evaluate`): pixel accuracy and mIoU (classes present) with the class-name vocabulary;
+the same with synonyms the model never trained on (`garbage can` for trash bin, `couch`, `fridge`,
+...) swapped in; and instance accuracy: the masked-mean prototype of each ground-truth instance
+(as the node pools them, §5.5) classified against the names.
+"""
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch.nn import functional as F
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from gf.data import SimDataset  # noqa: E402
+from gf.model import parameter_count  # noqa: E402
+from gf.semantic import SemanticMini, TextEncoder, label_set  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+# Words for classes that training never sees (class id -> phrase).
+SYNONYMS = {5: 'garbage can', 8: 'couch', 12: 'fridge', 10: 'bookcase', 13: 'computer screen', 14: 'houseplant',
+            15: 'carton', 4: 'cupboard'}
+
+
+def views_of(batch):
+    """Flatten windows into images [N,3,H,W] and class maps [N,H,W]."""
+    return batch['images'].flatten(0, 1), batch['class'].flatten(0, 1)
+
+
+def class_weights(dataset, classes, windows=300):
+    counts = np.zeros(classes)
+    for i in range(min(windows, len(dataset))):
+        counts += np.bincount(dataset[i]['class'].reshape(-1).numpy(), minlength=classes)[:classes]
+    frequency = counts / counts.sum()
+    present = frequency > 0
+    weights = np.ones(classes)
+    weights[present] = np.sqrt(np.median(frequency[present]) / frequency[present])
+    return torch.from_numpy(weights).float()
+
+
+def logits(features, text, scale, size):
+    """Cosines of per-pixel features [N,D,h,w] to text [K,D] -> scaled logits [N,K,H,W] at `size`."""
+    cosines = torch.einsum('ndhw,kd->nkhw', features, text)
+    return F.interpolate(cosines * scale, size=size, mode='bilinear', align_corners=False)
+
+
+def confusion_metrics(confusion):
+    tp = np.diag(confusion)
+    union = confusion.sum(0) + confusion.sum(1) - tp
+    present = confusion.sum(1) > 0
+    iou = tp[present] / np.maximum(union[present], 1)
+    return float(tp.sum() / max(confusion.sum(), 1)), float(iou.mean())
+
+
+@torch.no_grad()
+def evaluate(model, dataset, names_text, synonyms_text, indices=None):
+    model.eval()
+    classes = names_text.shape[0]
+    confusion = np.zeros((classes, classes), np.int64)
+    confusion_synonyms = np.zeros((classes, classes), np.int64)
+    instance_hits, instance_total = 0, 0
+    indices = range(len(dataset)) if indices is None else indices
+    for i in indices:
+        item = dataset[i]
+        images, truth = item['images'], item['class']
+        features = model(images)
+        size = truth.shape[-2:]
+        for text, matrix in ((names_text, confusion), (synonyms_text, confusion_synonyms)):
+            predicted = logits(features, text, 1.0, size).argmax(1)
+            matrix += np.bincount((truth * classes + predicted).reshape(-1).numpy(),
+                                  minlength=classes * classes).reshape(classes, classes)
+        # Instance prototypes as the node pools them: masked means of the (upsampled) features.
+        dense = F.interpolate(features, size=size, mode='bilinear', align_corners=False)
+        instance = item['instance']
+        for k in torch.unique(instance):
+            mask = instance == k
+            prototype = F.normalize(dense.permute(0, 2, 3, 1)[mask].mean(0), dim=0)
+            label = truth[mask].mode().values.item()
+            instance_hits += int((names_text @ prototype).argmax().item() == label)
+            instance_total += 1
+    accuracy, miou = confusion_metrics(confusion)
+    synonym_accuracy, synonym_miou = confusion_metrics(confusion_synonyms)
+    return {'pixel_accuracy': accuracy, 'miou': miou, 'synonym_pixel_accuracy': synonym_accuracy,
+            'synonym_miou': synonym_miou, 'instance_accuracy': instance_hits / max(instance_total, 1),
+            'instances': instance_total, 'windows': len(indices)}
+
+
+def text_tables(dataset_json):
+    names, descriptions = label_set(dataset_json)
+    encoder = TextEncoder(ROOT / 'models')
+    synonyms = [SYNONYMS.get(i, name) for i, name in enumerate(names)]
+    return names, encoder.embed(names), encoder.embed(descriptions), encoder.embed(synonyms)
+
+
+def report(args):
+    torch.set_num_threads(args.threads)
+    val = SimDataset(args.val, 'rgb')
+    _, names_text, _, synonyms_text = text_tables(Path(args.val) / 'dataset.json')
+    model = SemanticMini()
+    model.load_state_dict(torch.load(args.report))
+    held_out = range(0, max(0, len(val) - args.val_windows))
+    print(json.dumps(evaluate(model, val, names_text, synonyms_text, held_out)))
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument('--train', required=True)
+    parser.add_argument('--val', required=True)
+    parser.add_argument('--minutes', type=float, default=45.0, help='wall-clock budget')
+    parser.add_argument('--batch', type=int, default=2, help='windows per step (4 views each)')
+    parser.add_argument('--lr', type=float, default=2e-3)
+    parser.add_argument('--threads', type=int, default=2)
+    parser.add_argument('--eval-every', type=float, default=8.0, help='minutes between val evaluations')
+    parser.add_argument('--val-windows', type=int, default=24,
+                        help='the last N val windows pick the checkpoint; the rest stay held out for the report')
+    parser.add_argument('--seed', type=int, default=0)
+    parser.add_argument('--out', default=None)
+    parser.add_argument('--report', default=None, metavar='MODEL',
+                        help='only score MODEL (model.pt) on the val windows held out from selection, print JSON')
+    args = parser.parse_args()
+    if args.report:
+        report(args)
+        return
+
+    torch.set_num_threads(args.threads)
+    torch.manual_seed(args.seed)
+    assert args.out, '--out is required for training'
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    train = SimDataset(args.train, 'rgb')
+    val = SimDataset(args.val, 'rgb')
+    assert train.split == 'train' and val.split == 'val', 'train and val must come from their own splits'
+    names, names_text, descriptions_text, synonyms_text = text_tables(Path(args.train) / 'dataset.json')
+    weights = class_weights(train, len(names))
+    selection = range(max(0, len(val) - args.val_windows), len(val))
+    model = SemanticMini()
+    print(f'Semantic-mini: {parameter_count(model) / 1e6:.2f} M parameters; {len(train)} train windows; '
+          f'labels {names}; class weights {[round(w, 2) for w in weights.tolist()]}', flush=True)
+    loader = torch.utils.data.DataLoader(train, batch_size=args.batch, shuffle=True, drop_last=True)
+    optimizer = torch.optim.AdamW(model.parameters(), lr=args.lr, weight_decay=1e-4)
+    budget = args.minutes * 60.0
+    started = time.perf_counter()
+    last_eval = started
+    best = {'miou': -1.0}
+    step = 0
+    log = open(out / 'log.csv', 'w')
+    log.write('step,seconds,loss,name_loss,description_loss\n')
+    done = False
+    while not done:
+        for batch in loader:
+            elapsed = time.perf_counter() - started
+            if elapsed >= budget:
+                done = True
+                break
+            # Cosine decay to a tenth over the budget.
+            for group in optimizer.param_groups:
+                group['lr'] = args.lr * (0.1 + 0.9 * 0.5 * (1 + np.cos(np.pi * elapsed / budget)))
+            model.train()
+            images, classes = views_of(batch)
+            if torch.rand(()) < 0.5:  # left-right mirror: classes do not depend on handedness
+                images, classes = images.flip(-1), classes.flip(-1)
+            features = model(images)
+            scale = model.logit_scale.exp().clamp(max=100.0)
+            size = classes.shape[-2:]
+            name_loss = F.cross_entropy(logits(features, names_text, scale, size), classes, weight=weights)
+            description_loss = F.cross_entropy(logits(features, descriptions_text, scale, size), classes,
+                                               weight=weights)
+            loss = 0.5 * (name_loss + description_loss)
+            optimizer.zero_grad()
+            loss.backward()
+            torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
+            optimizer.step()
+            step += 1
+            log.write(f'{step},{elapsed:.1f},{loss.item():.5f},{name_loss.item():.5f},'
+                      f'{description_loss.item():.5f}\n')
+            if step % 50 == 0:
+                log.flush()
+                print(f'step {step} {elapsed / 60:.1f} min: loss {loss.item():.4f} (names {name_loss.item():.4f}, '
+                      f'descriptions {description_loss.item():.4f}) scale {scale.item():.1f}', flush=True)
+            now = time.perf_counter()
+            if now - last_eval >= args.eval_every * 60.0:
+                last_eval = now
+                metrics = evaluate(model, val, names_text, synonyms_text, selection)
+                print(f'  val: {metrics}', flush=True)
+                if metrics['miou'] > best['miou']:
+                    best = dict(metrics, step=step, minutes=elapsed / 60)
+                    torch.save(model.state_dict(), out / 'model.pt')
+    metrics = evaluate(model, val, names_text, synonyms_text, selection)
+    print(f'final val: {metrics}', flush=True)
+    if metrics['miou'] > best['miou']:
+        best = dict(metrics, step=step, minutes=(time.perf_counter() - started) / 60)
+        torch.save(model.state_dict(), out / 'model.pt')
+    summary = {'steps': step, 'minutes': (time.perf_counter() - started) / 60, 'threads': args.threads,
+               'train_windows': len(train), 'labels': names, 'best': best, 'final': metrics,
+               'parameters': parameter_count(model), 'args': vars(args)}
+    (out / 'summary.json').write_text(json.dumps(summary, indent=2))
+    log.close()
+    print(json.dumps(best))
+
+
+if __name__ == '__main__':
+    main()
