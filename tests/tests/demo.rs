@@ -27,6 +27,29 @@ fn the_demo_replays_a_sim_recorded_bag_into_the_node() {
         .instances
         .iter()
         .all(|i| i.id.starts_with("inst_") && i.point_count > 0));
+    // The shipped semantic model ran: every instance is named from the vocabulary, best first,
+    // with softmax scores; the biggest one (walls and floor) is `other`.
+    let vocabulary = groupforward::config::default_vocabulary();
+    for instance in &report.instances {
+        assert_eq!(instance.hypotheses.len(), 3, "{}", instance.id);
+        assert!(instance
+            .hypotheses
+            .iter()
+            .all(|h| vocabulary.contains(&h.class_id) && (0.0..=1.0).contains(&h.score)));
+        assert!(instance
+            .hypotheses
+            .windows(2)
+            .all(|w| w[0].score >= w[1].score));
+    }
+    let biggest = report
+        .instances
+        .iter()
+        .max_by_key(|i| i.point_count)
+        .unwrap();
+    assert_eq!(
+        biggest.hypotheses[0].class_id,
+        groupforward::config::OTHER_PHRASE
+    );
     assert!(report.expressions.len() >= 5);
     for e in &report.expressions {
         assert!(e
