@@ -11,7 +11,7 @@ use std::path::Path;
 
 use glam::{DVec2, DVec3};
 
-use super::manifest::{InputMode, Manifest, ModelKind};
+use super::manifest::{InputMode, Manifest, ModelKind, Normalization};
 use super::{open_session, ModelError, Result, SessionOptions};
 use crate::ingest::{DepthImage, RgbImage};
 use crate::recon::camera::Camera;
@@ -89,6 +89,26 @@ pub fn resize_rgb_planar(image: &RgbImage, width: usize, height: usize) -> Vec<f
         }
     }
     out
+}
+
+/// An image as a model input: resized to `width × height`, channel-planar in [0, 1], then
+/// normalised as the manifest says.
+pub fn model_image(
+    image: &RgbImage,
+    width: usize,
+    height: usize,
+    normalization: Option<&Normalization>,
+) -> Vec<f32> {
+    let plane = width * height;
+    let mut planar = resize_rgb_planar(image, width, height);
+    if let Some(n) = normalization {
+        for c in 0..3 {
+            for v in &mut planar[c * plane..(c + 1) * plane] {
+                *v = (*v - n.image_mean[c]) / n.image_std[c];
+            }
+        }
+    }
+    planar
 }
 
 /// The camera after resizing its image to `width × height` (pinhole scaling, centres kept).
@@ -181,15 +201,7 @@ impl ReconstructionModel {
                     "colour image size does not match its data".into(),
                 ));
             }
-            let mut planar = resize_rgb_planar(view.rgb, width, height);
-            if let Some(n) = &norm {
-                for c in 0..3 {
-                    for v in &mut planar[c * plane..(c + 1) * plane] {
-                        *v = (*v - n.image_mean[c]) / n.image_std[c];
-                    }
-                }
-            }
-            images.extend(planar);
+            images.extend(model_image(view.rgb, width, height, norm.as_ref()));
         }
         if self.mode() == InputMode::Rgb {
             return Ok(ModelInputs {

@@ -8,7 +8,7 @@
 use std::path::Path;
 
 use super::manifest::{Manifest, ModelKind};
-use super::reconstruction::resize_rgb_planar;
+use super::reconstruction::model_image;
 use super::{open_session, ModelError, Result, SessionOptions};
 use crate::ingest::RgbImage;
 
@@ -76,15 +76,7 @@ impl SemanticModel {
             self.manifest.input_width.unwrap_or(0),
             self.manifest.input_height.unwrap_or(0),
         );
-        let plane = width * height;
-        let mut planar = resize_rgb_planar(image, width, height);
-        if let Some(n) = &self.manifest.normalization {
-            for c in 0..3 {
-                for v in &mut planar[c * plane..(c + 1) * plane] {
-                    *v = (*v - n.image_mean[c]) / n.image_std[c];
-                }
-            }
-        }
+        let planar = model_image(image, width, height, self.manifest.normalization.as_ref());
         let channels = self.channels();
         let input = ort::value::Tensor::from_array(([1usize, 3, height, width], planar))?;
         let outputs = self.session.run(ort::inputs!["image" => input])?;
@@ -93,22 +85,19 @@ impl SemanticModel {
             .ok_or_else(|| ModelError::Ort("output `features` missing".into()))?;
         let (shape, data) = value.try_extract_tensor::<f32>()?;
         let dims: Vec<i64> = shape.iter().copied().collect();
-        let [1, c, h, w] = dims[..] else {
-            return Err(ModelError::Ort(format!(
-                "output `features` has shape {dims:?}, expected [1, {channels}, h, w]"
-            )));
+        let (h, w) = match dims[..] {
+            [1, c, h, w] if c as usize == channels && h > 0 && w > 0 => (h as usize, w as usize),
+            _ => {
+                return Err(ModelError::Ort(format!(
+                    "output `features` has shape {dims:?}, expected [1, {channels}, h, w]"
+                )))
+            }
         };
-        if c as usize != channels || h <= 0 || w <= 0 {
-            return Err(ModelError::Ort(format!(
-                "output `features` has shape {dims:?}, expected [1, {channels}, h, w]"
-            )));
-        }
         if let Some(i) = data.iter().position(|v| !v.is_finite()) {
             return Err(ModelError::Ort(format!(
                 "output `features` has a non-finite value at {i}"
             )));
         }
-        let (h, w) = (h as usize, w as usize);
         let feature_plane = h * w;
         // Channel-planar to pixel-major, the layout prototypes are pooled from.
         let mut pixel_major = vec![0.0f32; channels * feature_plane];
