@@ -11,6 +11,11 @@ Identical-looking close pairs: two objects of one class with the same colour who
 0.15 m apart (touching included), both seen with ≥ 50 pixels in the window. For each, `pair_ari` is
 the ARI restricted to the two objects' pixels (1 = split exactly as the truth; 0 = merged or random).
 
+Diagnostics of the embeddings themselves, without HDBSCAN: `oracle_ari` assigns every pixel to the
+nearest *true* instance centroid of the embeddings (the best any clustering of them could do with
+centroids), and `oracle_edge` / `oracle_inner` are that assignment's accuracy on pixels within 2 px
+of an instance boundary and on the rest.
+
 Depth: abs-rel and δ<1.25 over valid pixels. Training picks its checkpoint on the last 24 val windows
 (train_recon.py --val-windows); report the others (`--windows 76`) as held out from that choice.
 
@@ -24,6 +29,7 @@ from pathlib import Path
 
 import hdbscan
 import numpy as np
+from scipy import ndimage
 import torch
 from sklearn.metrics import adjusted_rand_score
 
@@ -74,10 +80,29 @@ def identical_close_pairs(objects, truth):
     return pairs
 
 
+def oracle_assignment(embeddings, truth_views):
+    """Nearest-true-centroid labels of unit `embeddings` [N,D] for instances `truth_views` [V,H,W]:
+    (ARI, [hits, pixels] within 2 px of a boundary, [hits, pixels] elsewhere)."""
+    truth = truth_views.reshape(-1)
+    ids = np.unique(truth)
+    centroids = np.stack([embeddings[truth == k].mean(0) for k in ids])
+    centroids /= np.maximum(np.linalg.norm(centroids, axis=1, keepdims=True), 1e-12)
+    predicted = ids[(embeddings @ centroids.T).argmax(1)]
+    inner = np.zeros(truth_views.shape, bool)
+    for v, view in enumerate(truth_views):
+        for k in np.unique(view):
+            inner[v] |= ndimage.binary_erosion(view == k, iterations=2)
+    inner = inner.reshape(-1)
+    hits = predicted == truth
+    return (adjusted_rand_score(truth, predicted), [int(hits[~inner].sum()), int((~inner).sum())],
+            [int(hits[inner].sum()), int(inner.sum())])
+
+
 @torch.no_grad()
 def evaluate(model, dataset, mode, indices=None):
     model.eval()
     aris, raw_aris, abs_rel, delta, pair_aris, clusters, instances = [], [], [], [], [], [], []
+    oracle_aris, edge, inner = [], [0, 0], [0, 0]
     indices = list(range(len(dataset))) if indices is None else list(indices)
     for i in indices:
         item = dataset[i]
@@ -91,6 +116,10 @@ def evaluate(model, dataset, mode, indices=None):
         aris.append(adjusted_rand_score(truth, labels))
         raw_aris.append(adjusted_rand_score(truth[sample], raw))
         clusters.append(len(np.unique(labels[labels >= 0])))
+        oracle, edge_hits, inner_hits = oracle_assignment(e, item['instance'].numpy())
+        oracle_aris.append(oracle)
+        edge = [a + b for a, b in zip(edge, edge_hits)]
+        inner = [a + b for a, b in zip(inner, inner_hits)]
         instances.append(len(np.unique(truth)))
         for a, b in identical_close_pairs(dataset.objects(i), truth):
             mask = (truth == a) | (truth == b)
@@ -103,6 +132,8 @@ def evaluate(model, dataset, mode, indices=None):
     return {'ari': float(np.mean(aris)), 'ari_hdbscan': float(np.mean(raw_aris)),
             'clusters': float(np.mean(clusters)), 'instances': float(np.mean(instances)),
             'pairs': len(pair_aris), 'pair_ari': float(np.mean(pair_aris)) if pair_aris else None,
+            'oracle_ari': float(np.mean(oracle_aris)), 'oracle_edge': edge[0] / max(edge[1], 1),
+            'oracle_inner': inner[0] / max(inner[1], 1),
             'abs_rel': float(np.mean(abs_rel)), 'delta1': float(np.mean(delta)), 'windows': len(indices)}
 
 
@@ -116,8 +147,7 @@ def main():
     parser.add_argument('--threads', type=int, default=2)
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
-    model = GroupForwardMini(mode=args.mode)
-    model.load_state_dict(torch.load(args.model))
+    model = GroupForwardMini.from_state_dict(torch.load(args.model), args.mode)
     dataset = SimDataset(args.val, args.mode)
     end = len(dataset) if args.windows is None else min(len(dataset), args.first + args.windows)
     print(json.dumps(evaluate(model, dataset, args.mode, range(args.first, end))))

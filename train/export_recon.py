@@ -31,8 +31,7 @@ def main():
     parser.add_argument('--report', required=True,
                         help='eval_recon.py output (JSON) on the val windows held out from checkpoint selection')
     args = parser.parse_args()
-    model = GroupForwardMini(mode=args.mode)
-    model.load_state_dict(torch.load(args.model))
+    model = GroupForwardMini.from_state_dict(torch.load(args.model), args.mode)
     model.eval()
     summary = json.loads(Path(args.summary).read_text())
     height, width = 96, 128
@@ -65,6 +64,8 @@ def main():
     losses = ('depth, photometric, direct and rendered instance losses' if summary.get('rendered_losses')
               else 'depth and direct instance losses only')
     size = onnx_path.stat().st_size
+    head = ('instance head: 3D centre votes' if model.centre_votes else 'instance head: plain') + (
+        ' + full-resolution refinement' if model.refine else '')
     manifest = f'''# GroupForward-mini ({args.mode}), trained here on the simulator by train/train_recon.py. Not a
 # pretrained paper model: {parameter_count(model) / 1e6:.2f} M parameters, small synthetic rooms only.
 name = "{args.name}"
@@ -74,7 +75,7 @@ mode = "{args.mode}"
 input_height = {height}
 input_width = {width}
 embedding_dim = 8
-provenance = "trained from scratch on groupforward-sim train split ({summary['train_windows']} windows x 4 views, 128x96), checkpoint of step {best['step']} ({best['minutes']:.0f} min) of a {summary['steps']}-step, {summary['minutes']:.0f}-min run on {summary['threads']} CPU thread(s), picked by ARI on {best['windows']} val windows; {losses}{'; pseudo instance labels' if summary['args'].get('pseudo_labels') else ''}; benchmarks below on {report['windows']} other val windows; ONNX parity {worst:.1e}; {size / 1e6:.1f} MB"
+provenance = "trained from scratch on groupforward-sim train split ({summary['train_windows']} windows x 4 views, 128x96), checkpoint of step {best['step']} ({best['minutes']:.0f} min) of a {summary['steps']}-step, {summary['minutes']:.0f}-min run on {summary['threads']} CPU thread(s), picked by ARI on {best['windows']} val windows; {head}; {losses}{'; pseudo instance labels' if summary['args'].get('pseudo_labels') else ''}; benchmarks below on {report['windows']} other val windows; ONNX parity {worst:.1e}; {size / 1e6:.1f} MB"
 license = "Apache-2.0"
 
 [normalization]
@@ -98,7 +99,8 @@ name = "embeddings"
 shape = [1, "V", 8, "H", "W"]
 '''
     manifest += '\n[benchmarks]\n# train/eval_recon.py on the val windows held out from checkpoint selection.\n'
-    for key in ('ari', 'ari_hdbscan', 'pair_ari', 'pairs', 'clusters', 'instances', 'abs_rel', 'delta1', 'windows'):
+    for key in ('ari', 'ari_hdbscan', 'pair_ari', 'pairs', 'clusters', 'instances', 'oracle_ari', 'abs_rel', 'delta1',
+                'windows'):
         if report.get(key) is not None:
             manifest += f'val_{key} = {float(report[key]):.4f}\n'
     manifest += f'size_mb = {size / 1e6:.2f}\nparameters_m = {parameter_count(model) / 1e6:.2f}\n'

@@ -40,8 +40,7 @@ def main():
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     dataset = SimDataset(args.data, args.mode)
-    model = GroupForwardMini(mode=args.mode)
-    model.load_state_dict(torch.load(args.stage1))
+    model = GroupForwardMini.from_state_dict(torch.load(args.stage1), args.mode)
     model.eval()
     rng = np.random.default_rng(args.seed)
     aris, per_view_aris = [], []

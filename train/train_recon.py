@@ -46,6 +46,9 @@ def main():
     parser.add_argument('--val', required=True)
     parser.add_argument('--mode', choices=['rgbd', 'rgb'], default='rgbd')
     parser.add_argument('--minutes', type=float, default=40.0, help='wall-clock budget')
+    parser.add_argument('--steps', type=int, default=0,
+                        help='a budget in steps instead of minutes (curriculum and schedule follow the step '
+                             'count), for comparisons that must not depend on machine load')
     parser.add_argument('--stages', type=float, nargs=3, default=[0.15, 0.25, 0.6],
                         help='budget shares of the three curriculum stages')
     parser.add_argument('--batch', type=int, default=2)
@@ -63,6 +66,10 @@ def main():
                         help='Gaussians per window the rendered losses rasterize (at 1/4 resolution)')
     parser.add_argument('--pseudo-labels', default=None,
                         help='train on these instance ids (train/make_pseudo_labels.py) instead of the ground truth')
+    parser.add_argument('--refine', action='store_true',
+                        help='refine the instance embeddings at full resolution (an ablation; off by default)')
+    parser.add_argument('--no-votes', action='store_true',
+                        help='RGB-D: a plain instance head instead of 3D centre votes (the model before them)')
     parser.add_argument('--snapshot-every', type=int, default=0,
                         help='also keep the weights every N steps (snapshot_<step>.pt), for equal-step comparisons')
     parser.add_argument('--out', required=True)
@@ -76,7 +83,8 @@ def main():
     val = SimDataset(args.val, args.mode)
     assert train.split == 'train' and val.split == 'val', 'train and val must come from their own splits'
     selection = range(max(0, len(val) - args.val_windows), len(val))
-    model = GroupForwardMini(mode=args.mode)
+    model = GroupForwardMini(mode=args.mode, refine=args.refine,
+                             centre_votes=False if args.no_votes else None)
     print(f'GroupForward-mini ({args.mode}): {parameter_count(model) / 1e6:.2f} M parameters; '
           f'{len(train)} train windows, {len(val)} val windows')
     loader = torch.utils.data.DataLoader(train, batch_size=args.batch, shuffle=True, drop_last=True,
@@ -99,10 +107,11 @@ def main():
     while not done:
         for batch in loader:
             elapsed = time.perf_counter() - started
-            if elapsed >= budget:
+            progress = step / args.steps if args.steps else elapsed / budget
+            if progress >= 1.0:
                 done = True
                 break
-            stage = stage_of(elapsed / budget, args.stages)
+            stage = stage_of(progress, args.stages)
             model.train()
             depth, gaussians, embeddings = model(batch['images'], batch['points'] if args.mode == 'rgbd' else None)
             l_depth = depth_loss(depth, batch['depth'])
@@ -124,7 +133,7 @@ def main():
             optimizer = optimizers[stage]
             if args.schedule == 'cosine':
                 # One decay over the whole budget; stage 3 runs at half the rate (all weights move).
-                factor = 0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * elapsed / budget))
+                factor = 0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * progress))
                 for group in optimizer.param_groups:
                     group['lr'] = args.lr * factor * (0.5 if stage == 3 else 1.0)
             optimizer.zero_grad()

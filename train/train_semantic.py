@@ -40,14 +40,14 @@ def views_of(batch):
     return batch['images'].flatten(0, 1), batch['class'].flatten(0, 1)
 
 
-def class_weights(dataset, classes, windows=300):
+def class_weights(dataset, classes, power, windows=300):
     counts = np.zeros(classes)
     for i in range(min(windows, len(dataset))):
         counts += np.bincount(dataset[i]['class'].reshape(-1).numpy(), minlength=classes)[:classes]
     frequency = counts / counts.sum()
     present = frequency > 0
     weights = np.ones(classes)
-    weights[present] = np.sqrt(np.median(frequency[present]) / frequency[present])
+    weights[present] = (np.median(frequency[present]) / frequency[present]) ** power
     return torch.from_numpy(weights).float()
 
 
@@ -127,6 +127,8 @@ def main():
     parser.add_argument('--val-windows', type=int, default=24,
                         help='the last N val windows pick the checkpoint; the rest stay held out for the report')
     parser.add_argument('--seed', type=int, default=0)
+    parser.add_argument('--class-weight-power', type=float, default=0.5,
+                        help='class weights are (median frequency / frequency)^power: 0 = none, 1 = full balance')
     parser.add_argument('--out', default=None)
     parser.add_argument('--report', default=None, metavar='MODEL',
                         help='only score MODEL (model.pt) on the val windows held out from selection, print JSON')
@@ -144,7 +146,7 @@ def main():
     val = SimDataset(args.val, 'rgb')
     assert train.split == 'train' and val.split == 'val', 'train and val must come from their own splits'
     names, names_text, descriptions_text, synonyms_text = text_tables(Path(args.train) / 'dataset.json')
-    weights = class_weights(train, len(names))
+    weights = class_weights(train, len(names), args.class_weight_power)
     selection = range(max(0, len(val) - args.val_windows), len(val))
     model = SemanticMini()
     print(f'Semantic-mini: {parameter_count(model) / 1e6:.2f} M parameters; {len(train)} train windows; '

@@ -6,11 +6,18 @@ U-Net decoder, and three heads (DESIGN §4 contract):
 - gaussians [B,V,11,H,W] = opacity (sigmoid), scale (3, softplus, pixels at unit depth), rotation (4,
   unit quaternion xyzw in the camera frame), colour residual (3, 0.2·tanh);
 - embeddings [B,V,8,H,W]: from multi-scale decoder features, the predicted (log) depth and the raw
-  input (colour; world XYZ in RGB-D mode), computed at half resolution and upsampled.
+  input (colour; world XYZ in RGB-D mode), computed at half resolution and upsampled. Optionally
+  (`refine`, off: it lowered the grouped ARI in both modes, see the README) one full-resolution
+  convolution over the finest decoder features sharpens them at boundaries.
+  With `centre_votes` (RGB-D mode) the half-resolution head predicts, per pixel, an offset from its
+  world point to a vote for its object's centre plus free features, and a per-pixel MLP over Fourier
+  features of the vote and the free features gives the embedding: every pixel of one object, in
+  every view, should vote for the same 3D point, so consistency across views needs no learned
+  appearance correspondence (spatial embeddings, Neven et al. 2019, lifted to 3D). Same losses.
 
 RGB-D mode (the node's default) takes `points` (world XYZ from sensor depth, centred and scaled as
 gf.data.world_points does) next to `images`; RGB mode (the paper's setting) takes images only and the
-depth head predicts geometry. Only plain ops (conv, group norm, matmul attention, nearest upsampling)
+depth head predicts geometry. Only plain ops (conv, group norm, matmul attention, interpolation, sin / cos)
 so the legacy ONNX exporter handles a dynamic number of views.
 """
 
@@ -19,6 +26,12 @@ import math
 import torch
 from torch import nn
 from torch.nn import functional as F
+
+
+# Centre votes: free features next to the 3D vote, and Fourier frequencies 2^i·π of the vote (points are
+# scaled to about unit range, so objects 0.3 m apart differ by ~0.1 and the top frequency resolves that).
+VOTE_FEATURES = 13
+VOTE_FREQUENCIES = 4
 
 
 def block(cin, cout, stride=1):
@@ -66,10 +79,14 @@ def positional_encoding(height, width, dim):
 
 
 class GroupForwardMini(nn.Module):
-    def __init__(self, mode='rgbd', height=96, width=128, embedding_dim=8, width_mult=1.0):
+    def __init__(self, mode='rgbd', height=96, width=128, embedding_dim=8, width_mult=1.0, refine=False,
+                 centre_votes=None):
         super().__init__()
         assert mode in ('rgbd', 'rgb')
         self.mode = mode
+        self.refine = refine
+        self.centre_votes = (mode == 'rgbd') if centre_votes is None else centre_votes
+        assert not (self.centre_votes and mode != 'rgbd'), 'centre votes need world points (RGB-D mode)'
         self.embedding_dim = embedding_dim
         c = [int(32 * width_mult), int(64 * width_mult), int(96 * width_mult), int(128 * width_mult)]
         cin = 6 if mode == 'rgbd' else 3
@@ -92,17 +109,36 @@ class GroupForwardMini(nn.Module):
             nn.GELU(),
             nn.Conv2d(64, 64, 3, padding=1),
             nn.GELU(),
-            nn.Conv2d(64, embedding_dim, 1),
+            nn.Conv2d(64, VOTE_FEATURES + 3 if self.centre_votes else embedding_dim, 1),
         )
+        if self.centre_votes:
+            self.instance_vote_mlp = nn.Sequential(
+                nn.Conv2d(3 * (1 + 2 * VOTE_FREQUENCIES) + VOTE_FEATURES, 64, 1),
+                nn.GELU(),
+                nn.Conv2d(64, embedding_dim, 1),
+            )
+        if refine:
+            # Starts as the identity on the upsampled embeddings.
+            self.instance_refine = nn.Conv2d(c[0] + embedding_dim, embedding_dim, 3, padding=1)
+            nn.init.zeros_(self.instance_refine.weight)
+            nn.init.zeros_(self.instance_refine.bias)
         # Rooms are metres deep: start the depth head near 2.5 m.
         nn.init.zeros_(self.depth_head.weight)
         nn.init.constant_(self.depth_head.bias, math.log(2.5))
 
     def reconstruction_parameters(self):
-        return [p for name, p in self.named_parameters() if not name.startswith('instance_head')]
+        return [p for name, p in self.named_parameters() if not name.startswith('instance_')]
 
     def instance_parameters(self):
-        return list(self.instance_head.parameters())
+        return [p for name, p in self.named_parameters() if name.startswith('instance_')]
+
+    @classmethod
+    def from_state_dict(cls, state, mode):
+        """A model with the architecture the checkpoint `state` was trained with, its weights loaded."""
+        model = cls(mode=mode, refine=any(k.startswith('instance_refine') for k in state),
+                    centre_votes=any(k.startswith('instance_vote_mlp') for k in state))
+        model.load_state_dict(state)
+        return model
 
     def forward(self, images, points=None):
         b, v = images.shape[0], images.shape[1]
@@ -137,8 +173,14 @@ class GroupForwardMini(nn.Module):
         # The raw input (colour, and world XYZ in RGB-D mode) goes straight in as well: instances are
         # compact in 3D, and the decoder's features are shaped by the depth loss first (curriculum).
         features = torch.cat([down(d0), d1, up(d2), down(log_depth), down(x)], dim=1)
-        embeddings = F.interpolate(self.instance_head(features), scale_factor=2.0, mode='bilinear',
-                                   align_corners=False)
+        embeddings = self.instance_head(features)
+        if self.centre_votes:
+            vote = down(x)[:, 3:6] + embeddings[:, :3]
+            scaled = torch.cat([vote * (2.0 ** i) * math.pi for i in range(VOTE_FREQUENCIES)], dim=1)
+            embeddings = self.instance_vote_mlp(torch.cat([vote, scaled.sin(), scaled.cos(), embeddings[:, 3:]], dim=1))
+        embeddings = F.interpolate(embeddings, scale_factor=2.0, mode='bilinear', align_corners=False)
+        if self.refine:
+            embeddings = embeddings + self.instance_refine(torch.cat([d0, embeddings], dim=1))
         shape = lambda t: t.reshape(b, v, *t.shape[1:])  # noqa: E731
         return shape(depth[:, 0]), shape(gaussians), shape(embeddings)
 
