@@ -11,6 +11,9 @@ Identical-looking close pairs: two objects of one class with the same colour who
 0.15 m apart (touching included), both seen with ≥ 50 pixels in the window. For each, `pair_ari` is
 the ARI restricted to the two objects' pixels (1 = split exactly as the truth; 0 = merged or random).
 
+Objects: `found` is the share of objects (≥ 50 pixels) whose majority cluster is theirs (not the
+room's, and no other object dominates it), `in_room` the share merged into the room's cluster.
+
 Diagnostics of the embeddings themselves, without HDBSCAN: `oracle_ari` assigns every pixel to the
 nearest *true* instance centroid of the embeddings (the best any clustering of them could do with
 centroids), and `oracle_edge` / `oracle_inner` are that assignment's accuracy on pixels within 2 px
@@ -98,11 +101,31 @@ def oracle_assignment(embeddings, truth_views):
             [int(hits[inner].sum()), int(inner.sum())])
 
 
+def objects_found(truth, labels, min_pixels=PAIR_MIN_PIXELS):
+    """Per-object outcome of a grouping, what a referring query needs: an object (instance id > 0,
+    ≥ `min_pixels` pixels) is *found* when the cluster holding most of its pixels is not the room's
+    (the background's majority cluster) and no other true instance has more pixels in that cluster;
+    *in the room* when its majority cluster is the room's. Returns (found, in_room, objects)."""
+    room = np.bincount(labels[truth == 0] + 1).argmax() - 1 if (truth == 0).any() else -2
+    found = in_room = objects = 0
+    for k in np.unique(truth[truth > 0]):
+        mask = truth == k
+        if mask.sum() < min_pixels:
+            continue
+        objects += 1
+        major = np.bincount(labels[mask] + 1).argmax() - 1
+        if major == room:
+            in_room += 1
+        elif major >= 0 and np.bincount(truth[labels == major]).argmax() == k:
+            found += 1
+    return found, in_room, objects
+
+
 @torch.no_grad()
 def evaluate(model, dataset, mode, indices=None):
     model.eval()
     aris, raw_aris, abs_rel, delta, pair_aris, clusters, instances = [], [], [], [], [], [], []
-    oracle_aris, edge, inner = [], [0, 0], [0, 0]
+    oracle_aris, edge, inner, found = [], [0, 0], [0, 0], [0, 0, 0]
     indices = list(range(len(dataset))) if indices is None else list(indices)
     for i in indices:
         item = dataset[i]
@@ -116,6 +139,7 @@ def evaluate(model, dataset, mode, indices=None):
         aris.append(adjusted_rand_score(truth, labels))
         raw_aris.append(adjusted_rand_score(truth[sample], raw))
         clusters.append(len(np.unique(labels[labels >= 0])))
+        found = [a + b for a, b in zip(found, objects_found(truth, labels))]
         oracle, edge_hits, inner_hits = oracle_assignment(e, item['instance'].numpy())
         oracle_aris.append(oracle)
         edge = [a + b for a, b in zip(edge, edge_hits)]
@@ -132,6 +156,7 @@ def evaluate(model, dataset, mode, indices=None):
     return {'ari': float(np.mean(aris)), 'ari_hdbscan': float(np.mean(raw_aris)),
             'clusters': float(np.mean(clusters)), 'instances': float(np.mean(instances)),
             'pairs': len(pair_aris), 'pair_ari': float(np.mean(pair_aris)) if pair_aris else None,
+            'objects': found[2], 'found': found[0] / max(found[2], 1), 'in_room': found[1] / max(found[2], 1),
             'oracle_ari': float(np.mean(oracle_aris)), 'oracle_edge': edge[0] / max(edge[1], 1),
             'oracle_inner': inner[0] / max(inner[1], 1),
             'abs_rel': float(np.mean(abs_rel)), 'delta1': float(np.mean(delta)), 'windows': len(indices)}

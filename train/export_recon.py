@@ -99,8 +99,8 @@ name = "embeddings"
 shape = [1, "V", 8, "H", "W"]
 '''
     manifest += '\n[benchmarks]\n# train/eval_recon.py on the val windows held out from checkpoint selection.\n'
-    for key in ('ari', 'ari_hdbscan', 'pair_ari', 'pairs', 'clusters', 'instances', 'oracle_ari', 'abs_rel', 'delta1',
-                'windows'):
+    for key in ('ari', 'ari_hdbscan', 'pair_ari', 'pairs', 'clusters', 'instances', 'found', 'in_room', 'objects',
+                'oracle_ari', 'abs_rel', 'delta1', 'windows'):
         if report.get(key) is not None:
             manifest += f'val_{key} = {float(report[key]):.4f}\n'
     manifest += f'size_mb = {size / 1e6:.2f}\nparameters_m = {parameter_count(model) / 1e6:.2f}\n'
