@@ -45,7 +45,13 @@ MIN_SAMPLES = 10
 MAX_CLUSTER_POINTS = 20_000
 NOISE_DISTANCE = 0.5
 PAIR_GAP = 0.15
-PAIR_MIN_PIXELS = 50
+MIN_OBJECT_PIXELS = 50  # an object counts as seen in a window (pairs, objects found)
+
+
+def unit_centroids(embeddings, labels, ids):
+    """The mean of the unit `embeddings` [N,D] per label in `ids`, renormalised to unit length."""
+    centroids = np.stack([embeddings[labels == k].mean(0) for k in ids])
+    return centroids / np.maximum(np.linalg.norm(centroids, axis=1, keepdims=True), 1e-12)
 
 
 def node_grouping(embeddings):
@@ -59,8 +65,7 @@ def node_grouping(embeddings):
     clusters = np.unique(raw[raw >= 0])
     if clusters.size == 0:
         return np.full(n, -1), raw, sample
-    centroids = np.stack([embeddings[sample][raw == c].mean(0) for c in clusters])
-    centroids /= np.maximum(np.linalg.norm(centroids, axis=1, keepdims=True), 1e-12)
+    centroids = unit_centroids(embeddings[sample], raw, clusters)
     distances = np.sqrt(np.maximum(
         (embeddings ** 2).sum(1)[:, None] - 2 * embeddings @ centroids.T + (centroids ** 2).sum(1)[None], 0))
     nearest = distances.argmin(1)
@@ -78,7 +83,7 @@ def identical_close_pairs(objects, truth):
                 continue
             gap = np.maximum(0.0, np.maximum(np.subtract(a['bounds_min'], b['bounds_max']),
                                              np.subtract(b['bounds_min'], a['bounds_max'])))
-            if np.linalg.norm(gap) <= PAIR_GAP and min(pixels[a['instance_id']], pixels[b['instance_id']]) >= PAIR_MIN_PIXELS:
+            if np.linalg.norm(gap) <= PAIR_GAP and min(pixels[a['instance_id']], pixels[b['instance_id']]) >= MIN_OBJECT_PIXELS:
                 pairs.append((a['instance_id'], b['instance_id']))
     return pairs
 
@@ -88,9 +93,7 @@ def oracle_assignment(embeddings, truth_views):
     (ARI, [hits, pixels] within 2 px of a boundary, [hits, pixels] elsewhere)."""
     truth = truth_views.reshape(-1)
     ids = np.unique(truth)
-    centroids = np.stack([embeddings[truth == k].mean(0) for k in ids])
-    centroids /= np.maximum(np.linalg.norm(centroids, axis=1, keepdims=True), 1e-12)
-    predicted = ids[(embeddings @ centroids.T).argmax(1)]
+    predicted = ids[(embeddings @ unit_centroids(embeddings, truth, ids).T).argmax(1)]
     inner = np.zeros(truth_views.shape, bool)
     for v, view in enumerate(truth_views):
         for k in np.unique(view):
@@ -101,7 +104,7 @@ def oracle_assignment(embeddings, truth_views):
             [int(hits[inner].sum()), int(inner.sum())])
 
 
-def objects_found(truth, labels, min_pixels=PAIR_MIN_PIXELS):
+def objects_found(truth, labels, min_pixels=MIN_OBJECT_PIXELS):
     """Per-object outcome of a grouping, what a referring query needs: an object (instance id > 0,
     ≥ `min_pixels` pixels) is *found* when the cluster holding most of its pixels is not the room's
     (the background's majority cluster) and no other true instance has more pixels in that cluster;
@@ -125,7 +128,7 @@ def objects_found(truth, labels, min_pixels=PAIR_MIN_PIXELS):
 def evaluate(model, dataset, mode, indices=None):
     model.eval()
     aris, raw_aris, abs_rel, delta, pair_aris, clusters, instances = [], [], [], [], [], [], []
-    oracle_aris, edge, inner, found = [], [0, 0], [0, 0], [0, 0, 0]
+    oracle_aris, edge, inner, found = [], np.zeros(2, int), np.zeros(2, int), np.zeros(3, int)
     indices = list(range(len(dataset))) if indices is None else list(indices)
     for i in indices:
         item = dataset[i]
@@ -139,11 +142,11 @@ def evaluate(model, dataset, mode, indices=None):
         aris.append(adjusted_rand_score(truth, labels))
         raw_aris.append(adjusted_rand_score(truth[sample], raw))
         clusters.append(len(np.unique(labels[labels >= 0])))
-        found = [a + b for a, b in zip(found, objects_found(truth, labels))]
+        found += objects_found(truth, labels)
         oracle, edge_hits, inner_hits = oracle_assignment(e, item['instance'].numpy())
         oracle_aris.append(oracle)
-        edge = [a + b for a, b in zip(edge, edge_hits)]
-        inner = [a + b for a, b in zip(inner, inner_hits)]
+        edge += edge_hits
+        inner += inner_hits
         instances.append(len(np.unique(truth)))
         for a, b in identical_close_pairs(dataset.objects(i), truth):
             mask = (truth == a) | (truth == b)
@@ -156,9 +159,9 @@ def evaluate(model, dataset, mode, indices=None):
     return {'ari': float(np.mean(aris)), 'ari_hdbscan': float(np.mean(raw_aris)),
             'clusters': float(np.mean(clusters)), 'instances': float(np.mean(instances)),
             'pairs': len(pair_aris), 'pair_ari': float(np.mean(pair_aris)) if pair_aris else None,
-            'objects': found[2], 'found': found[0] / max(found[2], 1), 'in_room': found[1] / max(found[2], 1),
-            'oracle_ari': float(np.mean(oracle_aris)), 'oracle_edge': edge[0] / max(edge[1], 1),
-            'oracle_inner': inner[0] / max(inner[1], 1),
+            'objects': int(found[2]), 'found': float(found[0] / max(found[2], 1)),
+            'in_room': float(found[1] / max(found[2], 1)), 'oracle_ari': float(np.mean(oracle_aris)),
+            'oracle_edge': float(edge[0] / max(edge[1], 1)), 'oracle_inner': float(inner[0] / max(inner[1], 1)),
             'abs_rel': float(np.mean(abs_rel)), 'delta1': float(np.mean(delta)), 'windows': len(indices)}
 
 

@@ -172,10 +172,11 @@ class GroupForwardMini(nn.Module):
         down = lambda t: F.avg_pool2d(t, 2)  # noqa: E731
         # The raw input (colour, and world XYZ in RGB-D mode) goes straight in as well: instances are
         # compact in 3D, and the decoder's features are shaped by the depth loss first (curriculum).
-        features = torch.cat([down(d0), d1, up(d2), down(log_depth), down(x)], dim=1)
+        x_half = down(x)
+        features = torch.cat([down(d0), d1, up(d2), down(log_depth), x_half], dim=1)
         embeddings = self.instance_head(features)
         if self.centre_votes:
-            vote = down(x)[:, 3:6] + embeddings[:, :3]
+            vote = x_half[:, 3:6] + embeddings[:, :3]
             scaled = torch.cat([vote * (2.0 ** i) * math.pi for i in range(VOTE_FREQUENCIES)], dim=1)
             embeddings = self.instance_vote_mlp(torch.cat([vote, scaled.sin(), scaled.cos(), embeddings[:, 3:]], dim=1))
         embeddings = F.interpolate(embeddings, scale_factor=2.0, mode='bilinear', align_corners=False)
