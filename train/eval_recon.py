@@ -12,7 +12,8 @@ Identical-looking close pairs: two objects of one class with the same colour who
 the ARI restricted to the two objects' pixels (1 = split exactly as the truth; 0 = merged or random).
 
 Objects: `found` is the share of objects (≥ 50 pixels) whose majority cluster is theirs (not the
-room's, and no other object dominates it), `in_room` the share merged into the room's cluster.
+room's, and no other object dominates it), `in_room` the share merged into the room's cluster
+(`in_room_by_class`: [merged, objects] per class).
 
 Diagnostics of the embeddings themselves, without HDBSCAN: `oracle_ari` assigns every pixel to the
 nearest *true* instance centroid of the embeddings (the best any clustering of them could do with
@@ -108,9 +109,11 @@ def objects_found(truth, labels, min_pixels=MIN_OBJECT_PIXELS):
     """Per-object outcome of a grouping, what a referring query needs: an object (instance id > 0,
     ≥ `min_pixels` pixels) is *found* when the cluster holding most of its pixels is not the room's
     (the background's majority cluster) and no other true instance has more pixels in that cluster;
-    *in the room* when its majority cluster is the room's. Returns (found, in_room, objects)."""
+    *in the room* when its majority cluster is the room's. Returns (found, in_room, objects) and the
+    ids of the objects merged into the room."""
     room = np.bincount(labels[truth == 0] + 1).argmax() - 1 if (truth == 0).any() else -2
     found = in_room = objects = 0
+    merged = []
     for k in np.unique(truth[truth > 0]):
         mask = truth == k
         if mask.sum() < min_pixels:
@@ -119,9 +122,10 @@ def objects_found(truth, labels, min_pixels=MIN_OBJECT_PIXELS):
         major = np.bincount(labels[mask] + 1).argmax() - 1
         if major == room:
             in_room += 1
+            merged.append(int(k))
         elif major >= 0 and np.bincount(truth[labels == major]).argmax() == k:
             found += 1
-    return found, in_room, objects
+    return (found, in_room, objects), merged
 
 
 @torch.no_grad()
@@ -130,6 +134,8 @@ def evaluate(model, dataset, mode, indices=None):
     aris, raw_aris, abs_rel, delta, pair_aris, clusters, instances = [], [], [], [], [], [], []
     oracle_aris, edge, inner, found = [], np.zeros(2, int), np.zeros(2, int), np.zeros(3, int)
     indices = list(range(len(dataset))) if indices is None else list(indices)
+    class_names = {c['id']: c['name'] for c in dataset.manifest['classes']}
+    by_class = {}  # class name -> [objects merged into the room, objects]
     for i in indices:
         item = dataset[i]
         images = item['images'][None]
@@ -142,7 +148,13 @@ def evaluate(model, dataset, mode, indices=None):
         aris.append(adjusted_rand_score(truth, labels))
         raw_aris.append(adjusted_rand_score(truth[sample], raw))
         clusters.append(len(np.unique(labels[labels >= 0])))
-        found += objects_found(truth, labels)
+        counts, merged = objects_found(truth, labels)
+        found += counts
+        for o in dataset.objects(i):
+            if (truth == o['instance_id']).sum() >= MIN_OBJECT_PIXELS:
+                tally = by_class.setdefault(class_names[o['class_id']], [0, 0])
+                tally[0] += o['instance_id'] in merged
+                tally[1] += 1
         oracle, edge_hits, inner_hits = oracle_assignment(e, item['instance'].numpy())
         oracle_aris.append(oracle)
         edge += edge_hits
@@ -160,7 +172,8 @@ def evaluate(model, dataset, mode, indices=None):
             'clusters': float(np.mean(clusters)), 'instances': float(np.mean(instances)),
             'pairs': len(pair_aris), 'pair_ari': float(np.mean(pair_aris)) if pair_aris else None,
             'objects': int(found[2]), 'found': float(found[0] / max(found[2], 1)),
-            'in_room': float(found[1] / max(found[2], 1)), 'oracle_ari': float(np.mean(oracle_aris)),
+            'in_room': float(found[1] / max(found[2], 1)), 'in_room_by_class': dict(sorted(by_class.items())),
+            'oracle_ari': float(np.mean(oracle_aris)),
             'oracle_edge': float(edge[0] / max(edge[1], 1)), 'oracle_inner': float(inner[0] / max(inner[1], 1)),
             'abs_rel': float(np.mean(abs_rel)), 'delta1': float(np.mean(delta)), 'windows': len(indices)}
 

@@ -26,7 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from gf.data import SimDataset  # noqa: E402
 from gf.losses import (  # noqa: E402
     LAMBDA_DICE, LAMBDA_DIRECT, LAMBDA_FOCAL, LAMBDA_PULL, LAMBDA_PUSH, LAMBDA_RENDER, depth_loss, direct_losses,
-    rendered_losses)
+    rendered_losses, vote_loss)
 from gf.model import GroupForwardMini, parameter_count  # noqa: E402
 from eval_recon import evaluate  # noqa: E402
 
@@ -70,6 +70,9 @@ def main():
                         help='refine the instance embeddings at full resolution (an ablation; off by default)')
     parser.add_argument('--no-votes', action='store_true',
                         help='RGB-D: a plain instance head instead of 3D centre votes (the model before them)')
+    parser.add_argument('--vote-weight', type=float, default=0.0,
+                        help='RGB-D votes head: weight of the supervised centre-vote loss (gf.losses.vote_loss; '
+                             '0 = votes trained by the embedding losses alone)')
     parser.add_argument('--snapshot-every', type=int, default=0,
                         help='also keep the weights every N steps (snapshot_<step>.pt), for equal-step comparisons')
     parser.add_argument('--out', required=True)
@@ -101,7 +104,7 @@ def main():
     step = 0
     log = open(out / 'log.csv', 'w', newline='')
     writer = csv.writer(log)
-    writer.writerow(['step', 'stage', 'seconds', 'loss', 'depth', 'pull', 'push', 'render', 'photometric'])
+    writer.writerow(['step', 'stage', 'seconds', 'loss', 'depth', 'pull', 'push', 'render', 'photometric', 'vote'])
     generator = torch.Generator().manual_seed(args.seed)
     done = False
     while not done:
@@ -113,10 +116,14 @@ def main():
                 break
             stage = stage_of(progress, args.stages)
             model.train()
-            depth, gaussians, embeddings = model(batch['images'], batch['points'] if args.mode == 'rgbd' else None)
+            depth, gaussians, embeddings, votes = model(
+                batch['images'], batch['points'] if args.mode == 'rgbd' else None, with_votes=True)
             l_depth = depth_loss(depth, batch['depth'])
             pull, push = direct_losses(embeddings, batch['instance'], generator=generator)
-            l_direct = LAMBDA_PULL * pull + LAMBDA_PUSH * push
+            l_vote = torch.zeros(())
+            if args.vote_weight > 0 and votes is not None:
+                l_vote = vote_loss(votes, batch['points'], batch['depth'], batch['instance'])
+            l_direct = LAMBDA_PULL * pull + LAMBDA_PUSH * push + args.vote_weight * l_vote
             l_render = torch.zeros(())
             l_photo = torch.zeros(())
             if not args.no_rendered:
@@ -145,12 +152,12 @@ def main():
                 torch.save(model.state_dict(), out / f'snapshot_{step}.pt')
             writer.writerow([step, stage, f'{elapsed:.1f}', f'{loss.item():.5f}', f'{l_depth.item():.5f}',
                              f'{pull.item():.5f}', f'{push.item():.5f}', f'{l_render.item():.5f}',
-                             f'{l_photo.item():.5f}'])
+                             f'{l_photo.item():.5f}', f'{l_vote.item():.5f}'])
             if step % 20 == 0:
                 log.flush()
                 print(f'step {step} stage {stage} {elapsed / 60:.1f} min: depth {l_depth.item():.4f} '
                       f'pull {pull.item():.4f} push {push.item():.4f} render {l_render.item():.4f} '
-                      f'photometric {l_photo.item():.4f}', flush=True)
+                      f'photometric {l_photo.item():.4f} vote {l_vote.item():.4f}', flush=True)
             now = time.perf_counter()
             if stage >= 2 and now - last_eval >= args.eval_every * 60.0:
                 last_eval = now

@@ -58,11 +58,13 @@ def logits(features, text, scale, size):
 
 
 def confusion_metrics(confusion):
+    """(pixel accuracy, mIoU over the classes present, IoU per class id or None where absent)."""
     tp = np.diag(confusion)
     union = confusion.sum(0) + confusion.sum(1) - tp
     present = confusion.sum(1) > 0
-    iou = tp[present] / np.maximum(union[present], 1)
-    return float(tp.sum() / max(confusion.sum(), 1)), float(iou.mean())
+    iou = tp / np.maximum(union, 1)
+    per_class = [float(x) if p else None for x, p in zip(iou, present)]
+    return float(tp.sum() / max(confusion.sum(), 1)), float(iou[present].mean()), per_class
 
 
 @torch.no_grad()
@@ -91,11 +93,11 @@ def evaluate(model, dataset, names_text, synonyms_text, indices=None):
             label = truth[mask].mode().values.item()
             instance_hits += int((names_text @ prototype).argmax().item() == label)
             instance_total += 1
-    accuracy, miou = confusion_metrics(confusion)
-    synonym_accuracy, synonym_miou = confusion_metrics(confusion_synonyms)
+    accuracy, miou, class_iou = confusion_metrics(confusion)
+    synonym_accuracy, synonym_miou, _ = confusion_metrics(confusion_synonyms)
     return {'pixel_accuracy': accuracy, 'miou': miou, 'synonym_pixel_accuracy': synonym_accuracy,
             'synonym_miou': synonym_miou, 'instance_accuracy': instance_hits / max(instance_total, 1),
-            'instances': instance_total, 'windows': len(indices)}
+            'instances': instance_total, 'windows': len(indices), 'class_iou': class_iou}
 
 
 def text_tables(dataset_json):
@@ -108,11 +110,13 @@ def text_tables(dataset_json):
 def report(args):
     torch.set_num_threads(args.threads)
     val = SimDataset(args.val, 'rgb')
-    _, names_text, _, synonyms_text = text_tables(Path(args.val) / 'dataset.json')
+    names, names_text, _, synonyms_text = text_tables(Path(args.val) / 'dataset.json')
     model = SemanticMini()
     model.load_state_dict(torch.load(args.report))
     held_out = range(0, max(0, len(val) - args.val_windows))
-    print(json.dumps(evaluate(model, val, names_text, synonyms_text, held_out)))
+    metrics = evaluate(model, val, names_text, synonyms_text, held_out)
+    metrics['class_iou'] = {name: iou for name, iou in zip(names, metrics['class_iou']) if iou is not None}
+    print(json.dumps(metrics))
 
 
 def main():
@@ -120,6 +124,9 @@ def main():
     parser.add_argument('--train', required=True)
     parser.add_argument('--val', required=True)
     parser.add_argument('--minutes', type=float, default=45.0, help='wall-clock budget')
+    parser.add_argument('--steps', type=int, default=0,
+                        help='a budget in steps instead of minutes (the schedule follows the step count), for '
+                             'runs that share the machine with other work')
     parser.add_argument('--batch', type=int, default=2, help='windows per step (4 views each)')
     parser.add_argument('--lr', type=float, default=2e-3)
     parser.add_argument('--threads', type=int, default=2)
@@ -164,12 +171,13 @@ def main():
     while not done:
         for batch in loader:
             elapsed = time.perf_counter() - started
-            if elapsed >= budget:
+            progress = step / args.steps if args.steps else elapsed / budget
+            if progress >= 1.0:
                 done = True
                 break
             # Cosine decay to a tenth over the budget.
             for group in optimizer.param_groups:
-                group['lr'] = args.lr * (0.1 + 0.9 * 0.5 * (1 + np.cos(np.pi * elapsed / budget)))
+                group['lr'] = args.lr * (0.1 + 0.9 * 0.5 * (1 + np.cos(np.pi * progress)))
             model.train()
             images, classes = views_of(batch)
             if torch.rand(()) < 0.5:  # left-right mirror: classes do not depend on handedness

@@ -4,6 +4,9 @@ Direct: N context pixels are sampled per window with weight 1/sqrt(instance area
 count), their embeddings ℓ2-normalised; centroids are the normalised means per instance;
 L_pull = mean_n ‖e_n − ē_{y_n}‖, L_push = mean_{k≠l} [m − ‖ē_k − ē_l‖]₊ with m = 1. Walls and floor
 (instance 0) are one background instance. Depth: L1 on log depth over valid pixels.
+
+Centre votes (an addition to §5.3, training only, `vote_loss`): every object pixel's vote should be
+its instance's 3D centroid in the window.
 """
 
 import torch
@@ -44,6 +47,31 @@ def direct_losses(embeddings, instance, samples=4096, generator=None):
         else:
             pushes.append(torch.zeros(()))
     return torch.stack(pulls).mean(), torch.stack(pushes).mean()
+
+
+def vote_loss(votes, points, depth, instance):
+    """Centre-vote supervision (not in the paper; the votes head is this project's): votes [B,V,3,h,w]
+    at half resolution, points [B,V,3,H,W] (the model's scaled world XYZ input), depth [B,V,H,W] and
+    instance [B,V,H,W] at full resolution. Each object's target is the mean of its valid points over
+    the window's views; the loss is ‖vote − target‖ averaged per object, then over objects, on
+    half-resolution pixels whose 2×2 block is one object. The room gets no target: it has no centre
+    an object could not also have, and the embedding losses already shape it."""
+    losses = []
+    for b in range(votes.shape[0]):
+        labels = instance[b]
+        valid = depth[b] > 0
+        blocks = [labels[:, dy::2, dx::2] for dy in (0, 1) for dx in (0, 1)]
+        pure = (blocks[0] == blocks[1]) & (blocks[0] == blocks[2]) & (blocks[0] == blocks[3])
+        pure &= F.avg_pool2d(valid.float()[:, None], 2)[:, 0] == 1.0
+        half = blocks[0]
+        vote = votes[b].permute(0, 2, 3, 1)  # V,h,w,3
+        xyz = points[b].permute(0, 2, 3, 1)  # V,H,W,3
+        per_object = []
+        for k in torch.unique(half[pure & (half > 0)]):
+            target = xyz[(labels == k) & valid].mean(0)
+            per_object.append((vote[pure & (half == k)] - target).norm(dim=1).mean())
+        losses.append(torch.stack(per_object).mean() if per_object else votes.sum() * 0.0)
+    return torch.stack(losses).mean()
 
 
 def depth_loss(predicted, target):

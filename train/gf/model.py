@@ -140,7 +140,9 @@ class GroupForwardMini(nn.Module):
         model.load_state_dict(state)
         return model
 
-    def forward(self, images, points=None):
+    def forward(self, images, points=None, with_votes=False):
+        """(depth, gaussians, embeddings); with `with_votes` also the half-resolution centre votes
+        [B,V,3,H/2,W/2] (None without `centre_votes`), for the training-only vote loss."""
         b, v = images.shape[0], images.shape[1]
         x = images.flatten(0, 1)
         if self.mode == 'rgbd':
@@ -175,6 +177,7 @@ class GroupForwardMini(nn.Module):
         x_half = down(x)
         features = torch.cat([down(d0), d1, up(d2), down(log_depth), x_half], dim=1)
         embeddings = self.instance_head(features)
+        vote = None
         if self.centre_votes:
             vote = x_half[:, 3:6] + embeddings[:, :3]
             scaled = torch.cat([vote * (2.0 ** i) * math.pi for i in range(VOTE_FREQUENCIES)], dim=1)
@@ -183,6 +186,8 @@ class GroupForwardMini(nn.Module):
         if self.refine:
             embeddings = embeddings + self.instance_refine(torch.cat([d0, embeddings], dim=1))
         shape = lambda t: t.reshape(b, v, *t.shape[1:])  # noqa: E731
+        if with_votes:
+            return shape(depth[:, 0]), shape(gaussians), shape(embeddings), None if vote is None else shape(vote)
         return shape(depth[:, 0]), shape(gaussians), shape(embeddings)
 
 
