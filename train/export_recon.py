@@ -65,7 +65,9 @@ def main():
               else 'depth and direct instance losses only')
     size = onnx_path.stat().st_size
     head = ('instance head: 3D centre votes' if model.centre_votes else 'instance head: plain') + (
-        ' + full-resolution refinement' if model.refine else '')
+        ' + full-resolution refinement' if model.refine else '') + (
+        f" (supervised by the centre-vote loss, weight {summary['args']['vote_weight']:g})"
+        if summary['args'].get('vote_weight') else '')
     manifest = f'''# GroupForward-mini ({args.mode}), trained here on the simulator by train/train_recon.py. Not a
 # pretrained paper model: {parameter_count(model) / 1e6:.2f} M parameters, small synthetic rooms only.
 name = "{args.name}"

@@ -116,8 +116,8 @@ def main():
                 break
             stage = stage_of(progress, args.stages)
             model.train()
-            depth, gaussians, embeddings, votes = model(
-                batch['images'], batch['points'] if args.mode == 'rgbd' else None, with_votes=True)
+            depth, gaussians, embeddings, votes = model.forward_with_votes(
+                batch['images'], batch['points'] if args.mode == 'rgbd' else None)
             l_depth = depth_loss(depth, batch['depth'])
             pull, push = direct_losses(embeddings, batch['instance'], generator=generator)
             l_vote = torch.zeros(())

@@ -140,9 +140,13 @@ class GroupForwardMini(nn.Module):
         model.load_state_dict(state)
         return model
 
-    def forward(self, images, points=None, with_votes=False):
-        """(depth, gaussians, embeddings); with `with_votes` also the half-resolution centre votes
-        [B,V,3,H/2,W/2] (None without `centre_votes`), for the training-only vote loss."""
+    def forward(self, images, points=None):
+        """(depth, gaussians, embeddings): the exported contract."""
+        return self.forward_with_votes(images, points)[:3]
+
+    def forward_with_votes(self, images, points=None):
+        """(depth, gaussians, embeddings, votes): also the half-resolution centre votes [B,V,3,H/2,W/2]
+        (None without `centre_votes`), for the training-only vote loss."""
         b, v = images.shape[0], images.shape[1]
         x = images.flatten(0, 1)
         if self.mode == 'rgbd':
@@ -186,9 +190,7 @@ class GroupForwardMini(nn.Module):
         if self.refine:
             embeddings = embeddings + self.instance_refine(torch.cat([d0, embeddings], dim=1))
         shape = lambda t: t.reshape(b, v, *t.shape[1:])  # noqa: E731
-        if with_votes:
-            return shape(depth[:, 0]), shape(gaussians), shape(embeddings), None if vote is None else shape(vote)
-        return shape(depth[:, 0]), shape(gaussians), shape(embeddings)
+        return shape(depth[:, 0]), shape(gaussians), shape(embeddings), None if vote is None else shape(vote)
 
 
 def parameter_count(model):
