@@ -109,23 +109,23 @@ def objects_found(truth, labels, min_pixels=MIN_OBJECT_PIXELS):
     """Per-object outcome of a grouping, what a referring query needs: an object (instance id > 0,
     ≥ `min_pixels` pixels) is *found* when the cluster holding most of its pixels is not the room's
     (the background's majority cluster) and no other true instance has more pixels in that cluster;
-    *in the room* when its majority cluster is the room's. Returns (found, in_room, objects) and the
-    ids of the objects merged into the room."""
+    *in the room* when its majority cluster is the room's. Returns (found, in_room, objects) and each
+    counted object's id with whether it is in the room."""
     room = np.bincount(labels[truth == 0] + 1).argmax() - 1 if (truth == 0).any() else -2
     found = in_room = objects = 0
-    merged = []
+    outcomes = []
     for k in np.unique(truth[truth > 0]):
         mask = truth == k
         if mask.sum() < min_pixels:
             continue
         objects += 1
         major = np.bincount(labels[mask] + 1).argmax() - 1
+        outcomes.append((int(k), bool(major == room)))
         if major == room:
             in_room += 1
-            merged.append(int(k))
         elif major >= 0 and np.bincount(truth[labels == major]).argmax() == k:
             found += 1
-    return (found, in_room, objects), merged
+    return (found, in_room, objects), outcomes
 
 
 @torch.no_grad()
@@ -148,19 +148,20 @@ def evaluate(model, dataset, mode, indices=None):
         aris.append(adjusted_rand_score(truth, labels))
         raw_aris.append(adjusted_rand_score(truth[sample], raw))
         clusters.append(len(np.unique(labels[labels >= 0])))
-        counts, merged = objects_found(truth, labels)
+        objects = dataset.objects(i)
+        class_of = {o['instance_id']: class_names[o['class_id']] for o in objects}
+        counts, outcomes = objects_found(truth, labels)
         found += counts
-        for o in dataset.objects(i):
-            if (truth == o['instance_id']).sum() >= MIN_OBJECT_PIXELS:
-                tally = by_class.setdefault(class_names[o['class_id']], [0, 0])
-                tally[0] += o['instance_id'] in merged
-                tally[1] += 1
+        for k, merged in outcomes:
+            tally = by_class.setdefault(class_of[k], [0, 0])
+            tally[0] += merged
+            tally[1] += 1
         oracle, edge_hits, inner_hits = oracle_assignment(e, item['instance'].numpy())
         oracle_aris.append(oracle)
         edge += edge_hits
         inner += inner_hits
         instances.append(len(np.unique(truth)))
-        for a, b in identical_close_pairs(dataset.objects(i), truth):
+        for a, b in identical_close_pairs(objects, truth):
             mask = (truth == a) | (truth == b)
             pair_aris.append(adjusted_rand_score(truth[mask], labels[mask]))
         target = item['depth']

@@ -68,7 +68,7 @@ def confusion_metrics(confusion):
 
 
 @torch.no_grad()
-def evaluate(model, dataset, names_text, synonyms_text, indices=None):
+def evaluate(model, dataset, names, names_text, synonyms_text, indices=None):
     model.eval()
     classes = names_text.shape[0]
     confusion = np.zeros((classes, classes), np.int64)
@@ -97,7 +97,8 @@ def evaluate(model, dataset, names_text, synonyms_text, indices=None):
     synonym_accuracy, synonym_miou, _ = confusion_metrics(confusion_synonyms)
     return {'pixel_accuracy': accuracy, 'miou': miou, 'synonym_pixel_accuracy': synonym_accuracy,
             'synonym_miou': synonym_miou, 'instance_accuracy': instance_hits / max(instance_total, 1),
-            'instances': instance_total, 'windows': len(indices), 'class_iou': class_iou}
+            'instances': instance_total, 'windows': len(indices),
+            'class_iou': {name: iou for name, iou in zip(names, class_iou) if iou is not None}}
 
 
 def text_tables(dataset_json):
@@ -114,9 +115,7 @@ def report(args):
     model = SemanticMini()
     model.load_state_dict(torch.load(args.report))
     held_out = range(0, max(0, len(val) - args.val_windows))
-    metrics = evaluate(model, val, names_text, synonyms_text, held_out)
-    metrics['class_iou'] = {name: iou for name, iou in zip(names, metrics['class_iou']) if iou is not None}
-    print(json.dumps(metrics))
+    print(json.dumps(evaluate(model, val, names, names_text, synonyms_text, held_out)))
 
 
 def main():
@@ -203,12 +202,12 @@ def main():
             now = time.perf_counter()
             if now - last_eval >= args.eval_every * 60.0:
                 last_eval = now
-                metrics = evaluate(model, val, names_text, synonyms_text, selection)
+                metrics = evaluate(model, val, names, names_text, synonyms_text, selection)
                 print(f'  val: {metrics}', flush=True)
                 if metrics['miou'] > best['miou']:
                     best = dict(metrics, step=step, minutes=elapsed / 60)
                     torch.save(model.state_dict(), out / 'model.pt')
-    metrics = evaluate(model, val, names_text, synonyms_text, selection)
+    metrics = evaluate(model, val, names, names_text, synonyms_text, selection)
     print(f'final val: {metrics}', flush=True)
     if metrics['miou'] > best['miou']:
         best = dict(metrics, step=step, minutes=(time.perf_counter() - started) / 60)
