@@ -1,11 +1,13 @@
 #![allow(clippy::unwrap_used)]
 //! Grouping: clusters recovered on synthetic embeddings, and every hard case (identical points,
-//! too few points, noise only, touching clusters, 1-D data, tiny temperatures, zero vectors) stays
-//! finite and meaningful.
+//! too few points, noise only, touching clusters, 1-D data, tiny temperatures, zero vectors,
+//! identical or empty clusters to merge) stays finite and meaningful.
 
 use groupforward::group::blobs::blobs;
 use groupforward::group::hdbscan::{hdbscan, HdbscanParams};
-use groupforward::group::{assignment_probabilities, group, GroupingParams};
+use groupforward::group::{
+    assignment_probabilities, group, merge_close_clusters, GroupError, GroupingParams,
+};
 use groupforward::recon::metrics::adjusted_rand_index;
 
 fn ari(labels: &[i32], truth: &[u32]) -> f64 {
@@ -332,5 +334,87 @@ fn hypothesis_scores_stay_finite_at_tiny_temperatures() {
         let total: f32 = names.iter().map(|(_, s)| s).sum();
         assert!((total - 1.0).abs() < 1e-4, "scores sum to {total}");
         assert_eq!(names[0].0, "chair");
+    }
+}
+
+fn distance(a: &[f32], b: &[f32]) -> f32 {
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y) * (x - y))
+        .sum::<f32>()
+        .sqrt()
+}
+
+#[test]
+fn close_clusters_merge_and_distant_ones_stay() {
+    // Two modes of one instance (0.2 apart on the sphere) and an orthogonal instance.
+    let angle = 0.2f32;
+    let sums = vec![
+        vec![10.0, 0.0, 0.0],
+        vec![30.0 * angle.cos(), 30.0 * angle.sin(), 0.0],
+        vec![0.0, 0.0, 5.0],
+    ];
+    let merged = merge_close_clusters(sums.clone(), 0.4);
+    assert_eq!(merged.len(), 2);
+    // The joined centroid is the renormalised member sum: pulled towards the bigger mode.
+    let joined = merged.iter().find(|c| c[2].abs() < 1e-6).unwrap();
+    let expected_angle = (30.0 * angle.sin()).atan2(10.0 + 30.0 * angle.cos());
+    assert!((joined[1].atan2(joined[0]) - expected_angle).abs() < 1e-5);
+    assert!(merged.iter().any(|c| distance(c, &[0.0, 0.0, 1.0]) < 1e-6));
+    // Zero merge distance keeps HDBSCAN's clusters.
+    assert_eq!(merge_close_clusters(sums.clone(), 0.0).len(), 3);
+    // Chains join closest pair first until no pair is close: all three at a huge distance.
+    assert_eq!(merge_close_clusters(sums, 2.0).len(), 1);
+}
+
+#[test]
+fn identical_and_empty_clusters_merge_to_finite_centroids() {
+    let identical = vec![vec![0.0, 2.0], vec![0.0, 7.0]];
+    let merged = merge_close_clusters(identical, 0.4);
+    assert_eq!(merged, vec![vec![0.0, 1.0]]);
+    // A cluster of zero vectors has a zero sum: its centroid stays zero (1 from every unit
+    // centroid), never NaN.
+    let with_zero = vec![vec![0.0, 0.0], vec![3.0, 0.0]];
+    let merged = merge_close_clusters(with_zero, 0.4);
+    assert_eq!(merged.len(), 2);
+    assert!(merged.iter().flatten().all(|v| v.is_finite()));
+    assert!(merge_close_clusters(Vec::new(), 0.4).is_empty());
+}
+
+#[test]
+fn grouping_joins_one_instance_split_into_two_modes() {
+    // One instance whose embeddings form two tight modes 0.25 apart, and a second instance
+    // orthogonal to both: HDBSCAN alone finds three clusters, the merge two.
+    let mut points = Vec::new();
+    let mut truth = Vec::new();
+    let modes: [([f32; 3], u32); 3] = [
+        ([1.0, 0.0, 0.0], 0),
+        ([0.25f32.cos(), 0.25f32.sin(), 0.0], 0),
+        ([0.0, 0.0, 1.0], 1),
+    ];
+    for (i, (centre, id)) in modes.iter().enumerate() {
+        for j in 0..200 {
+            let jitter = 0.01 * (((i * 200 + j) as f32 * 0.618).fract() - 0.5);
+            points.extend([centre[0] + jitter, centre[1] - jitter, centre[2] + jitter]);
+            truth.push(*id);
+        }
+    }
+    let unmerged = GroupingParams {
+        merge_distance: 0.0,
+        ..GroupingParams::default()
+    };
+    assert_eq!(group(&points, 3, &unmerged).unwrap().centroids.len(), 3);
+    let result = group(&points, 3, &GroupingParams::default()).unwrap();
+    assert_eq!(result.centroids.len(), 2);
+    assert!(ari(&result.labels, &truth) > 0.99);
+    for bad in [f32::NAN, -0.1, f32::INFINITY] {
+        let params = GroupingParams {
+            merge_distance: bad,
+            ..GroupingParams::default()
+        };
+        assert!(matches!(
+            group(&points, 3, &params),
+            Err(GroupError::MergeDistance(_))
+        ));
     }
 }

@@ -56,7 +56,7 @@ fn run(file: SceneFile, window_every: usize) -> (usize, BTreeMap<u16, Vec<String
             entry.2 += 1;
         }
         // Slivers at the image border carry too little geometry to identify anything (the model
-        // path drops them the same way: HDBSCAN min_cluster_size 60).
+        // path drops them too: HDBSCAN needs min_cluster_size points of its subsample).
         per_instance.retain(|_, (_, _, pixels)| *pixels >= 60);
         let order: Vec<u16> = per_instance.keys().copied().collect();
         let window = per_instance
