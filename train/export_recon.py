@@ -66,7 +66,8 @@ def main():
     size = onnx_path.stat().st_size
     head = ('instance head: 3D centre votes' if model.centre_votes else 'instance head: plain') + (
         ' + full-resolution refinement' if model.refine else '') + (
-        f" (supervised by the centre-vote loss, weight {summary['args']['vote_weight']:g})"
+        f" (supervised by the centre-vote loss, weight {summary['args']['vote_weight']:g}"
+        f"{'; walls and floor vote below the floor' if summary['args'].get('room_vote') else ''})"
         if summary['args'].get('vote_weight') else '')
     manifest = f'''# GroupForward-mini ({args.mode}), trained here on the simulator by train/train_recon.py. Not a
 # pretrained paper model: {parameter_count(model) / 1e6:.2f} M parameters, small synthetic rooms only.

@@ -25,8 +25,8 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from gf.data import SimDataset  # noqa: E402
 from gf.losses import (  # noqa: E402
-    LAMBDA_DICE, LAMBDA_DIRECT, LAMBDA_FOCAL, LAMBDA_PULL, LAMBDA_PUSH, LAMBDA_RENDER, depth_loss, direct_losses,
-    rendered_losses, vote_loss)
+    LAMBDA_DICE, LAMBDA_DIRECT, LAMBDA_FOCAL, LAMBDA_PULL, LAMBDA_PUSH, LAMBDA_RENDER, ROOM_VOTE, depth_loss,
+    direct_losses, rendered_losses, vote_loss)
 from gf.model import GroupForwardMini, parameter_count  # noqa: E402
 from eval_recon import evaluate  # noqa: E402
 
@@ -73,6 +73,9 @@ def main():
     parser.add_argument('--vote-weight', type=float, default=0.0,
                         help='RGB-D votes head: weight of the supervised centre-vote loss (gf.losses.vote_loss; '
                              '0 = votes trained by the embedding losses alone)')
+    parser.add_argument('--room-vote', action='store_true',
+                        help='with --vote-weight: walls and floor vote for a fixed point below the floor '
+                             '(gf.losses.ROOM_VOTE) instead of having no vote target')
     parser.add_argument('--snapshot-every', type=int, default=0,
                         help='also keep the weights every N steps (snapshot_<step>.pt), for equal-step comparisons')
     parser.add_argument('--out', required=True)
@@ -122,7 +125,8 @@ def main():
             pull, push = direct_losses(embeddings, batch['instance'], generator=generator)
             l_vote = torch.zeros(())
             if args.vote_weight > 0 and votes is not None:
-                l_vote = vote_loss(votes, batch['points'], batch['depth'], batch['instance'])
+                l_vote = vote_loss(votes, batch['points'], batch['depth'], batch['instance'],
+                                   ROOM_VOTE if args.room_vote else None)
             l_direct = LAMBDA_PULL * pull + LAMBDA_PUSH * push + args.vote_weight * l_vote
             l_render = torch.zeros(())
             l_photo = torch.zeros(())

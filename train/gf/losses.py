@@ -6,7 +6,8 @@ L_pull = mean_n ‖e_n − ē_{y_n}‖, L_push = mean_{k≠l} [m − ‖ē_k −
 (instance 0) are one background instance. Depth: L1 on log depth over valid pixels.
 
 Centre votes (an addition to §5.3, training only, `vote_loss`): every object pixel's vote should be
-its instance's 3D centroid in the window.
+its instance's 3D centroid in the window; optionally (`room_target`) every wall and floor pixel's
+vote a fixed point below the floor, where no object's centre can be.
 """
 
 import torch
@@ -16,6 +17,10 @@ LAMBDA_PULL = 0.5
 LAMBDA_PUSH = 0.5
 LAMBDA_DIRECT = 1.0
 MARGIN = 1.0
+# The room's vote target with `--room-vote`, in the model's scaled world units (centred on the mean
+# camera centre, 3 m per unit): 4.5 m below the cameras, metres under any floor, and not at a whole
+# period of the votes' Fourier features from the objects' centres (z ≈ −0.5 to 0.2).
+ROOM_VOTE = (0.0, 0.0, -1.5)
 
 
 def sample_pixels(instance, count, generator=None):
@@ -49,13 +54,14 @@ def direct_losses(embeddings, instance, samples=4096, generator=None):
     return torch.stack(pulls).mean(), torch.stack(pushes).mean()
 
 
-def vote_loss(votes, points, depth, instance):
+def vote_loss(votes, points, depth, instance, room_target=None):
     """Centre-vote supervision (not in the paper; the votes head is this project's): votes [B,V,3,h,w]
     at half resolution, points [B,V,3,H,W] (the model's scaled world XYZ input), depth [B,V,H,W] and
     instance [B,V,H,W] at full resolution. Each object's target is the mean of its valid points over
     the window's views; the loss is ‖vote − target‖ averaged per object, then over objects, on
-    half-resolution pixels whose 2×2 block is one object. The room gets no target: it has no centre
-    an object could not also have, and the embedding losses already shape it."""
+    half-resolution pixels whose 2×2 block is one object. By default the room gets no target (its
+    centroid lies among the objects'); with `room_target` (3 values) its pixels vote for that
+    point and the room counts as one more object in the mean."""
     losses = []
     for b in range(votes.shape[0]):
         labels = instance[b]
@@ -70,6 +76,10 @@ def vote_loss(votes, points, depth, instance):
         for k in torch.unique(half[pure & (half > 0)]):
             target = xyz[(labels == k) & valid].mean(0)
             per_object.append((vote[pure & (half == k)] - target).norm(dim=1).mean())
+        room = pure & (half == 0)
+        if room_target is not None and room.any():
+            target = torch.as_tensor(room_target, dtype=vote.dtype)
+            per_object.append((vote[room] - target).norm(dim=1).mean())
         losses.append(torch.stack(per_object).mean() if per_object else votes.sum() * 0.0)
     return torch.stack(losses).mean()
 
