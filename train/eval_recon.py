@@ -59,8 +59,8 @@ def unit_centroids(embeddings, labels, ids):
 
 
 def merge_close_clusters(sums, merge_distance):
-    """node/src/group `merge_close_clusters`: unit centroids of clusters given by their member sums
-    [K,D], joining the closest pair while it is at most `merge_distance` apart."""
+    """node/src/group `merge_close_clusters`: unit centroids of K ≥ 1 clusters given by their member
+    sums [K,D], joining the closest pair while it is at most `merge_distance` apart."""
     sums = [s.astype(np.float64) for s in sums]
     unit = lambda s: s / max(np.linalg.norm(s), 1e-12)  # noqa: E731
     centroids = [unit(s) for s in sums]
@@ -76,7 +76,7 @@ def merge_close_clusters(sums, merge_distance):
         centroids[b] = centroids[-1]
         centroids.pop()
         centroids[a] = unit(sums[a])
-    return np.stack(centroids) if centroids else np.zeros((0, sums[0].shape[0] if sums else 0))
+    return np.stack(centroids)
 
 
 def node_grouping(embeddings, grouping=GROUPING):

@@ -64,11 +64,13 @@ def main():
     losses = ('depth, photometric, direct and rendered instance losses' if summary.get('rendered_losses')
               else 'depth and direct instance losses only')
     size = onnx_path.stat().st_size
-    head = ('instance head: 3D centre votes' if model.centre_votes else 'instance head: plain') + (
-        ' + full-resolution refinement' if model.refine else '') + (
-        f" (supervised by the centre-vote loss, weight {summary['args']['vote_weight']:g}"
-        f"{'; walls and floor vote below the floor' if summary['args'].get('room_vote') else ''})"
-        if summary['args'].get('vote_weight') else '')
+    train_args = summary['args']
+    head = 'instance head: 3D centre votes' if model.centre_votes else 'instance head: plain'
+    if model.refine:
+        head += ' + full-resolution refinement'
+    if train_args.get('vote_weight'):
+        room = '; walls and floor vote below the floor' if train_args.get('room_vote') else ''
+        head += f" (supervised by the centre-vote loss, weight {train_args['vote_weight']:g}{room})"
     manifest = f'''# GroupForward-mini ({args.mode}), trained here on the simulator by train/train_recon.py. Not a
 # pretrained paper model: {parameter_count(model) / 1e6:.2f} M parameters, small synthetic rooms only.
 name = "{args.name}"
@@ -78,7 +80,7 @@ mode = "{args.mode}"
 input_height = {height}
 input_width = {width}
 embedding_dim = 8
-provenance = "trained from scratch on groupforward-sim train split ({summary['train_windows']} windows x 4 views, 128x96), checkpoint of step {best['step']} ({best['minutes']:.0f} min) of a {summary['steps']}-step, {summary['minutes']:.0f}-min run on {summary['threads']} CPU thread(s), picked by ARI on {best['windows']} val windows; {head}; {losses}{'; pseudo instance labels' if summary['args'].get('pseudo_labels') else ''}; benchmarks below on {report['windows']} other val windows; ONNX parity {worst:.1e}; {size / 1e6:.1f} MB"
+provenance = "trained from scratch on groupforward-sim train split ({summary['train_windows']} windows x 4 views, 128x96), checkpoint of step {best['step']} ({best['minutes']:.0f} min) of a {summary['steps']}-step, {summary['minutes']:.0f}-min run on {summary['threads']} CPU thread(s), picked by ARI on {best['windows']} val windows; {head}; {losses}{'; pseudo instance labels' if train_args.get('pseudo_labels') else ''}; benchmarks below on {report['windows']} other val windows; ONNX parity {worst:.1e}; {size / 1e6:.1f} MB"
 license = "Apache-2.0"
 
 [normalization]

@@ -6,7 +6,8 @@
 use groupforward::group::blobs::blobs;
 use groupforward::group::hdbscan::{hdbscan, HdbscanParams};
 use groupforward::group::{
-    assignment_probabilities, group, merge_close_clusters, GroupError, GroupingParams,
+    assignment_probabilities, embedding_distance, group, merge_close_clusters, GroupError,
+    GroupingParams,
 };
 use groupforward::recon::metrics::adjusted_rand_index;
 
@@ -337,14 +338,6 @@ fn hypothesis_scores_stay_finite_at_tiny_temperatures() {
     }
 }
 
-fn distance(a: &[f32], b: &[f32]) -> f32 {
-    a.iter()
-        .zip(b)
-        .map(|(x, y)| (x - y) * (x - y))
-        .sum::<f32>()
-        .sqrt()
-}
-
 #[test]
 fn close_clusters_merge_and_distant_ones_stay() {
     // Two modes of one instance (0.2 apart on the sphere) and an orthogonal instance.
@@ -360,7 +353,9 @@ fn close_clusters_merge_and_distant_ones_stay() {
     let joined = merged.iter().find(|c| c[2].abs() < 1e-6).unwrap();
     let expected_angle = (30.0 * angle.sin()).atan2(10.0 + 30.0 * angle.cos());
     assert!((joined[1].atan2(joined[0]) - expected_angle).abs() < 1e-5);
-    assert!(merged.iter().any(|c| distance(c, &[0.0, 0.0, 1.0]) < 1e-6));
+    assert!(merged
+        .iter()
+        .any(|c| embedding_distance(c, &[0.0, 0.0, 1.0]) < 1e-6));
     // Zero merge distance keeps HDBSCAN's clusters.
     assert_eq!(merge_close_clusters(sums.clone(), 0.0).len(), 3);
     // Chains join closest pair first until no pair is close: all three at a huge distance.

@@ -81,6 +81,15 @@ pub fn normalize_rows(values: &mut [f32], dims: usize) {
     }
 }
 
+/// Euclidean (ℓ2) distance between two embeddings of equal length.
+pub fn embedding_distance(a: &[f32], b: &[f32]) -> f32 {
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y) * (x - y))
+        .sum::<f32>()
+        .sqrt()
+}
+
 /// Assignment probabilities of one embedding to `centroids`, numerically stable for any τ > 0
 /// (the smallest distance is subtracted before exponentiating). Writes into `out`.
 pub fn assignment_probabilities(
@@ -92,13 +101,7 @@ pub fn assignment_probabilities(
     out.clear();
     let distances: Vec<f32> = centroids
         .iter()
-        .map(|c| {
-            c.iter()
-                .zip(embedding)
-                .map(|(a, b)| (a - b) * (a - b))
-                .sum::<f32>()
-                .sqrt()
-        })
+        .map(|c| embedding_distance(c, embedding))
         .collect();
     let nearest = distances.iter().copied().fold(f32::INFINITY, f32::min);
     let mut sum = 0.0f32;
@@ -126,12 +129,7 @@ pub fn merge_close_clusters(mut sums: Vec<Vec<f32>>, merge_distance: f32) -> Vec
         let mut closest: Option<(usize, usize, f32)> = None;
         for a in 0..centroids.len() {
             for b in a + 1..centroids.len() {
-                let distance = centroids[a]
-                    .iter()
-                    .zip(&centroids[b])
-                    .map(|(x, y)| (x - y) * (x - y))
-                    .sum::<f32>()
-                    .sqrt();
+                let distance = embedding_distance(&centroids[a], &centroids[b]);
                 if closest.is_none_or(|(_, _, d)| distance < d) {
                     closest = Some((a, b, distance));
                 }
@@ -198,13 +196,7 @@ pub fn group(
                     (0, f32::NEG_INFINITY),
                     |acc, (k, &p)| if p > acc.1 { (k, p) } else { acc },
                 );
-                let distance = centroids[best]
-                    .iter()
-                    .zip(row)
-                    .map(|(a, b)| (a - b) * (a - b))
-                    .sum::<f32>()
-                    .sqrt();
-                if distance <= params.noise_distance {
+                if embedding_distance(&centroids[best], row) <= params.noise_distance {
                     best as i32
                 } else {
                     -1
