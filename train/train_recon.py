@@ -26,7 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from gf.data import SimDataset  # noqa: E402
 from gf.losses import (  # noqa: E402
     LAMBDA_DICE, LAMBDA_DIRECT, LAMBDA_FOCAL, LAMBDA_PULL, LAMBDA_PUSH, LAMBDA_RENDER, ROOM_VOTE, depth_loss,
-    direct_losses, rendered_losses, vote_loss)
+    assignment_losses, direct_losses, rendered_losses, vote_loss)
 from gf.model import GroupForwardMini, parameter_count  # noqa: E402
 from eval_recon import evaluate  # noqa: E402
 
@@ -76,10 +76,17 @@ def main():
     parser.add_argument('--room-vote', action='store_true',
                         help='with --vote-weight: walls and floor vote for a fixed point below the floor '
                              '(gf.losses.ROOM_VOTE) instead of having no vote target')
+    parser.add_argument('--hard-push', action='store_true',
+                        help='push hinge averaged over the violating centroid pairs only (gf.losses.direct_losses)')
+    parser.add_argument('--direct-assignment', action='store_true',
+                        help='dice + focal on the unrendered assignment probabilities of sampled pixels '
+                             '(gf.losses.assignment_losses), weighted as the rendered ones')
     parser.add_argument('--snapshot-every', type=int, default=0,
                         help='also keep the weights every N steps (snapshot_<step>.pt), for equal-step comparisons')
     parser.add_argument('--out', required=True)
     args = parser.parse_args()
+    if args.room_vote and args.vote_weight <= 0:
+        parser.error('--room-vote needs --vote-weight > 0 (without it the vote loss is off)')
 
     torch.set_num_threads(args.threads)
     torch.manual_seed(args.seed)
@@ -107,7 +114,7 @@ def main():
     step = 0
     log = open(out / 'log.csv', 'w', newline='')
     writer = csv.writer(log)
-    writer.writerow(['step', 'stage', 'seconds', 'loss', 'depth', 'pull', 'push', 'render', 'photometric', 'vote'])
+    writer.writerow(['step', 'stage', 'seconds', 'loss', 'depth', 'pull', 'push', 'render', 'photometric', 'vote', 'assignment'])
     generator = torch.Generator().manual_seed(args.seed)
     done = False
     while not done:
@@ -122,12 +129,16 @@ def main():
             depth, gaussians, embeddings, votes = model.forward_with_votes(
                 batch['images'], batch['points'] if args.mode == 'rgbd' else None)
             l_depth = depth_loss(depth, batch['depth'])
-            pull, push = direct_losses(embeddings, batch['instance'], generator=generator)
+            pull, push = direct_losses(embeddings, batch['instance'], generator=generator, hard_push=args.hard_push)
+            l_assignment = torch.zeros(())
+            if args.direct_assignment:
+                dice, focal = assignment_losses(embeddings, batch['instance'], generator=generator)
+                l_assignment = LAMBDA_DICE * dice + LAMBDA_FOCAL * focal
             l_vote = torch.zeros(())
             if args.vote_weight > 0 and votes is not None:
                 l_vote = vote_loss(votes, batch['points'], batch['depth'], batch['instance'],
                                    ROOM_VOTE if args.room_vote else None)
-            l_direct = LAMBDA_PULL * pull + LAMBDA_PUSH * push + args.vote_weight * l_vote
+            l_direct = LAMBDA_PULL * pull + LAMBDA_PUSH * push + args.vote_weight * l_vote + l_assignment
             l_render = torch.zeros(())
             l_photo = torch.zeros(())
             if not args.no_rendered:
@@ -156,12 +167,13 @@ def main():
                 torch.save(model.state_dict(), out / f'snapshot_{step}.pt')
             writer.writerow([step, stage, f'{elapsed:.1f}', f'{loss.item():.5f}', f'{l_depth.item():.5f}',
                              f'{pull.item():.5f}', f'{push.item():.5f}', f'{l_render.item():.5f}',
-                             f'{l_photo.item():.5f}', f'{l_vote.item():.5f}'])
+                             f'{l_photo.item():.5f}', f'{l_vote.item():.5f}', f'{l_assignment.item():.5f}'])
             if step % 20 == 0:
                 log.flush()
                 print(f'step {step} stage {stage} {elapsed / 60:.1f} min: depth {l_depth.item():.4f} '
                       f'pull {pull.item():.4f} push {push.item():.4f} render {l_render.item():.4f} '
-                      f'photometric {l_photo.item():.4f} vote {l_vote.item():.4f}', flush=True)
+                      f'photometric {l_photo.item():.4f} vote {l_vote.item():.4f} '
+                      f'assignment {l_assignment.item():.4f}', flush=True)
             now = time.perf_counter()
             if stage >= 2 and now - last_eval >= args.eval_every * 60.0:
                 last_eval = now

@@ -17,6 +17,10 @@ LAMBDA_PULL = 0.5
 LAMBDA_PUSH = 0.5
 LAMBDA_DIRECT = 1.0
 MARGIN = 1.0
+LAMBDA_DICE = 0.5
+LAMBDA_FOCAL = 0.5
+LAMBDA_RENDER = 1.0
+TAU = 0.1
 # The room's vote target with `--room-vote`, in the model's scaled world units (centred on the mean
 # camera centre, 3 m per unit): 4.5 m below the cameras, metres under any floor, and not at a whole
 # period of the votes' Fourier features from the objects' centres (z ≈ −0.5 to 0.2).
@@ -31,27 +35,66 @@ def sample_pixels(instance, count, generator=None):
     return torch.multinomial(weights[inverse], count, replacement=True, generator=generator)
 
 
-def direct_losses(embeddings, instance, samples=4096, generator=None):
-    """embeddings [B,V,D,H,W], instance [B,V,H,W] -> (pull, push) averaged over the batch."""
+def sampled_embeddings(embeddings, instance, samples, generator=None):
+    """Sampled pixels of one window (embeddings [V,D,H,W], instance [V,H,W]): their unit embeddings
+    [N,D], instance labels 0..K-1 [N] and the unit centroids [K,D] of each instance's samples."""
+    e = embeddings.permute(0, 2, 3, 1).reshape(-1, embeddings.shape[1])
+    y = instance.reshape(-1)
+    index = sample_pixels(y, samples, generator)
+    e = F.normalize(e[index], dim=1)
+    ids, labels = torch.unique(y[index], return_inverse=True)
+    centroids = F.normalize(torch.zeros(ids.numel(), e.shape[1]).index_add_(0, labels, e), dim=1)
+    return e, labels, centroids
+
+
+def direct_losses(embeddings, instance, samples=4096, generator=None, hard_push=False):
+    """embeddings [B,V,D,H,W], instance [B,V,H,W] -> (pull, push) averaged over the batch.
+    `hard_push` (an experiment, off by default) averages the push hinge over the violating pairs only,
+    not over all k ≠ l: with a dozen instances in a window, most pairs are already apart and the
+    plain mean dilutes the few close ones (a pillow on its bed) by the number of pairs."""
     pulls, pushes = [], []
     for b in range(embeddings.shape[0]):
-        e = embeddings[b].permute(0, 2, 3, 1).reshape(-1, embeddings.shape[2])
-        y = instance[b].reshape(-1)
-        index = sample_pixels(y, samples, generator)
-        e = F.normalize(e[index], dim=1)
-        y = y[index]
-        ids, labels = torch.unique(y, return_inverse=True)
-        k = ids.numel()
-        sums = torch.zeros(k, e.shape[1]).index_add_(0, labels, e)
-        centroids = F.normalize(sums, dim=1)
+        e, labels, centroids = sampled_embeddings(embeddings[b], instance[b], samples, generator)
+        k = centroids.shape[0]
         pulls.append((e - centroids[labels]).norm(dim=1).mean())
         if k > 1:
             distances = torch.cdist(centroids, centroids)
             off_diagonal = ~torch.eye(k, dtype=torch.bool)
-            pushes.append(F.relu(MARGIN - distances[off_diagonal]).mean())
+            hinge = F.relu(MARGIN - distances[off_diagonal])
+            if hard_push:
+                pushes.append(hinge.sum() / (hinge > 0).sum().clamp_min(1))
+            else:
+                pushes.append(hinge.mean())
         else:
             pushes.append(torch.zeros(()))
     return torch.stack(pulls).mean(), torch.stack(pushes).mean()
+
+
+def assignment_losses(embeddings, instance, samples=4096, generator=None):
+    """The rendered dice + focal terms of §5.3 on the pixel-aligned Gaussians themselves, without the
+    rasterizer (an experiment, off by default): p_nk = softmax_k(−‖e_n − ē_k‖/τ) of sampled context
+    pixels against their instances. Every pixel, not only every centroid, must be nearer its own
+    instance than any other, at a small fraction of the rendered losses' cost.
+    embeddings [B,V,D,H,W], instance [B,V,H,W] -> (dice, focal) averaged over the batch."""
+    dices, focals = [], []
+    for b in range(embeddings.shape[0]):
+        e, labels, centroids = sampled_embeddings(embeddings[b], instance[b], samples, generator)
+        p = torch.softmax(-torch.cdist(e, centroids) / TAU, dim=1)
+        dice, focal = dice_focal(p, F.one_hot(labels, centroids.shape[0]).to(p.dtype))
+        dices.append(dice)
+        focals.append(focal)
+    return torch.stack(dices).mean(), torch.stack(focals).mean()
+
+
+def dice_focal(p, one_hot):
+    """Dice (mean over the instances present) and focal (γ = 2) losses of assignment probabilities
+    p [N,K] against one-hot labels [N,K]."""
+    intersection = (p * one_hot).sum(0)
+    present = one_hot.sum(0) > 0
+    dice = (1 - 2 * intersection / (p.sum(0) + one_hot.sum(0)).clamp_min(1e-6))[present].mean()
+    p_true = (p * one_hot).sum(1).clamp(1e-6, 1.0)
+    focal = (-(1 - p_true) ** 2 * p_true.log()).mean()
+    return dice, focal
 
 
 def vote_loss(votes, points, depth, instance, room_target=None):
@@ -90,11 +133,6 @@ def depth_loss(predicted, target):
         return torch.zeros(())
     return (predicted[valid].clamp_min(1e-3).log() - target[valid].log()).abs().mean()
 
-
-LAMBDA_DICE = 0.5
-LAMBDA_FOCAL = 0.5
-LAMBDA_RENDER = 1.0
-TAU = 0.1
 
 
 def lift(depth, gaussians, images, k, world_from_camera, count, generator=None):
@@ -167,12 +205,9 @@ def rendered_losses(depth, gaussians, embeddings, batch, count=4096, scale=0.25,
                 continue
             p = out[..., :k] / alpha.clamp_min(1e-6)[..., None]
             one_hot = F.one_hot(target, k).to(p.dtype)
-            p, one_hot = p[covered], one_hot[covered]
-            intersection = (p * one_hot).sum(0)
-            present = one_hot.sum(0) > 0
-            dice.append((1 - 2 * intersection / (p.sum(0) + one_hot.sum(0)).clamp_min(1e-6))[present].mean())
-            p_true = (p * one_hot).sum(1).clamp(1e-6, 1.0)
-            focal.append((-(1 - p_true) ** 2 * p_true.log()).mean())
+            view_dice, view_focal = dice_focal(p[covered], one_hot[covered])
+            dice.append(view_dice)
+            focal.append(view_focal)
             rendered_e = F.normalize(out[..., k:k + e.shape[1]][covered], dim=1)
             pixel_labels = target[covered]
             pull.append((rendered_e - centroids[pixel_labels]).norm(dim=1).mean())
