@@ -16,14 +16,18 @@ the ARI restricted to the two objects' pixels (1 = split exactly as the truth; 0
 
 Objects: `found` is the share of objects (≥ 50 pixels) whose majority cluster is theirs (not the
 room's, and no other object dominates it), `in_room` the share merged into the room's cluster
-(`in_room_by_class`: [merged, objects] per class).
+(`in_room_by_class`: [merged, objects] per class), `noise` the share left mostly as noise and
+`merged` the rest: merged into another object's cluster. `room_kept`: the share of the room's pixels
+in its largest cluster (mean over windows); `room_split`: windows where that share is under 0.9.
 
 Diagnostics of the embeddings themselves, without HDBSCAN: `oracle_ari` assigns every pixel to the
 nearest *true* instance centroid of the embeddings (the best any clustering of them could do with
 centroids), and `oracle_edge` / `oracle_inner` are that assignment's accuracy on pixels within 2 px
 of an instance boundary and on the rest.
 
-Depth: abs-rel and δ<1.25 over valid pixels. Training picks its checkpoint on the last 24 val windows
+Depth: abs-rel and δ<1.25 over valid pixels; abs-rel also on the room's and on the objects' pixels
+alone, and after scaling each window's prediction by its median ratio to the truth (what is left
+when the global scale is right). Training picks its checkpoint on the last 24 val windows
 (train_recon.py --val-windows); report the others (`--windows 76`) as held out from that choice.
 
   train/.venv/bin/python train/eval_recon.py --model train/runs/rgbd/model.pt --val train/data/val --mode rgbd
@@ -50,6 +54,7 @@ MAX_CLUSTER_POINTS = 20_000
 GROUPING = (30, 10, 0.7, 0.4)
 PAIR_GAP = 0.15
 MIN_OBJECT_PIXELS = 50  # an object counts as seen in a window (pairs, objects found)
+ROOM_SPLIT = 0.9  # a window's room counts as split when its largest cluster holds less of it
 
 
 def unit_centroids(embeddings, labels, ids):
@@ -135,10 +140,11 @@ def objects_found(truth, labels, min_pixels=MIN_OBJECT_PIXELS):
     """Per-object outcome of a grouping, what a referring query needs: an object (instance id > 0,
     ≥ `min_pixels` pixels) is *found* when the cluster holding most of its pixels is not the room's
     (the background's majority cluster) and no other true instance has more pixels in that cluster;
-    *in the room* when its majority cluster is the room's. Returns (found, in_room, objects) and each
-    counted object's id with whether it is in the room."""
+    *in the room* when its majority cluster is the room's; *noise* when most of its pixels are noise;
+    otherwise merged into another object. Returns (found, in_room, noise, objects) and each counted
+    object's id with whether it is in the room."""
     room = np.bincount(labels[truth == 0] + 1).argmax() - 1 if (truth == 0).any() else -2
-    found = in_room = objects = 0
+    found = in_room = noise = objects = 0
     outcomes = []
     for k in np.unique(truth[truth > 0]):
         mask = truth == k
@@ -149,16 +155,19 @@ def objects_found(truth, labels, min_pixels=MIN_OBJECT_PIXELS):
         outcomes.append((int(k), bool(major == room)))
         if major == room:
             in_room += 1
-        elif major >= 0 and np.bincount(truth[labels == major]).argmax() == k:
+        elif major < 0:
+            noise += 1
+        elif np.bincount(truth[labels == major]).argmax() == k:
             found += 1
-    return (found, in_room, objects), outcomes
+    return (found, in_room, noise, objects), outcomes
 
 
 @torch.no_grad()
 def evaluate(model, dataset, mode, indices=None, grouping=GROUPING):
     model.eval()
     aris, raw_aris, abs_rel, delta, pair_aris, clusters, instances = [], [], [], [], [], [], []
-    oracle_aris, edge, inner, found = [], np.zeros(2, int), np.zeros(2, int), np.zeros(3, int)
+    oracle_aris, edge, inner, found = [], np.zeros(2, int), np.zeros(2, int), np.zeros(4, int)
+    abs_rel_room, abs_rel_objects, abs_rel_scaled, room_kept = [], [], [], []
     indices = list(range(len(dataset))) if indices is None else list(indices)
     class_names = {c['id']: c['name'] for c in dataset.manifest['classes']}
     by_class = {}  # class name -> [objects merged into the room, objects]
@@ -172,6 +181,9 @@ def evaluate(model, dataset, mode, indices=None, grouping=GROUPING):
         truth = item['instance'].reshape(-1).numpy()
         labels, raw, sample = node_grouping(e, grouping)
         aris.append(adjusted_rand_score(truth, labels))
+        room_labels = labels[truth == 0]
+        room_clusters = np.bincount(room_labels[room_labels >= 0])
+        room_kept.append(room_clusters.max() / room_labels.size if room_clusters.size else 0.0)
         raw_aris.append(adjusted_rand_score(truth[sample], raw))
         clusters.append(len(np.unique(labels[labels >= 0])))
         objects = dataset.objects(i)
@@ -193,16 +205,28 @@ def evaluate(model, dataset, mode, indices=None, grouping=GROUPING):
         target = item['depth']
         valid = target > 0
         ratio = depth[0][valid] / target[valid]
-        abs_rel.append(((depth[0][valid] - target[valid]).abs() / target[valid]).mean().item())
+        relative_error = (depth[0] - target).abs() / target.clamp_min(1e-6)
+        abs_rel.append(relative_error[valid].mean().item())
+        room = valid & (item['instance'] == 0)
+        object_pixels = valid & (item['instance'] > 0)
+        abs_rel_room.append(relative_error[room].mean().item() if room.any() else np.nan)
+        abs_rel_objects.append(relative_error[object_pixels].mean().item() if object_pixels.any() else np.nan)
+        scale = (target[valid] / depth[0][valid]).median()
+        abs_rel_scaled.append(((depth[0][valid] * scale - target[valid]).abs() / target[valid]).mean().item())
         delta.append((torch.maximum(ratio, 1 / ratio) < 1.25).float().mean().item())
     return {'ari': float(np.mean(aris)), 'ari_hdbscan': float(np.mean(raw_aris)),
             'clusters': float(np.mean(clusters)), 'instances': float(np.mean(instances)),
             'pairs': len(pair_aris), 'pair_ari': float(np.mean(pair_aris)) if pair_aris else None,
-            'objects': int(found[2]), 'found': float(found[0] / max(found[2], 1)),
-            'in_room': float(found[1] / max(found[2], 1)), 'in_room_by_class': dict(sorted(by_class.items())),
+            'objects': int(found[3]), 'found': float(found[0] / max(found[3], 1)),
+            'in_room': float(found[1] / max(found[3], 1)), 'noise': float(found[2] / max(found[3], 1)),
+            'merged': float((found[3] - found[0] - found[1] - found[2]) / max(found[3], 1)),
+            'in_room_by_class': dict(sorted(by_class.items())),
+            'room_kept': float(np.mean(room_kept)), 'room_split': int(np.sum(np.array(room_kept) < ROOM_SPLIT)),
             'oracle_ari': float(np.mean(oracle_aris)),
             'oracle_edge': float(edge[0] / max(edge[1], 1)), 'oracle_inner': float(inner[0] / max(inner[1], 1)),
-            'abs_rel': float(np.mean(abs_rel)), 'delta1': float(np.mean(delta)), 'windows': len(indices)}
+            'abs_rel': float(np.mean(abs_rel)), 'delta1': float(np.mean(delta)),
+            'abs_rel_room': float(np.nanmean(abs_rel_room)), 'abs_rel_objects': float(np.nanmean(abs_rel_objects)),
+            'abs_rel_median_scaled': float(np.mean(abs_rel_scaled)), 'windows': len(indices)}
 
 
 def main():
