@@ -78,9 +78,10 @@ def main():
                              '(gf.losses.ROOM_VOTE) instead of having no vote target')
     parser.add_argument('--hard-push', action='store_true',
                         help='push hinge averaged over the violating centroid pairs only (gf.losses.direct_losses)')
-    parser.add_argument('--direct-assignment', action='store_true',
+    parser.add_argument('--direct-assignment', type=float, nargs='?', const=1.0, default=0.0,
                         help='dice + focal on the unrendered assignment probabilities of sampled pixels '
-                             '(gf.losses.assignment_losses), weighted as the rendered ones')
+                             '(gf.losses.assignment_losses), weighted as the rendered ones times this '
+                             'factor (1 when given without a value)')
     parser.add_argument('--snapshot-every', type=int, default=0,
                         help='also keep the weights every N steps (snapshot_<step>.pt), for equal-step comparisons')
     parser.add_argument('--out', required=True)
@@ -133,7 +134,7 @@ def main():
             l_assignment = torch.zeros(())
             if args.direct_assignment:
                 dice, focal = assignment_losses(embeddings, batch['instance'], generator=generator)
-                l_assignment = LAMBDA_DICE * dice + LAMBDA_FOCAL * focal
+                l_assignment = args.direct_assignment * (LAMBDA_DICE * dice + LAMBDA_FOCAL * focal)
             l_vote = torch.zeros(())
             if args.vote_weight > 0 and votes is not None:
                 l_vote = vote_loss(votes, batch['points'], batch['depth'], batch['instance'],
