@@ -65,6 +65,11 @@ def main():
               else 'depth and direct instance losses only')
     size = onnx_path.stat().st_size
     train_args = summary['args']
+    # The experiments' extra instance terms, so a model trained with them does not read as direct-only.
+    if train_args.get('direct_assignment'):
+        losses += f"; dice + focal on unrendered assignment probabilities, weight {train_args['direct_assignment']:g}"
+    if train_args.get('hard_push'):
+        losses += '; push over violating pairs only'
     head = 'instance head: 3D centre votes' if model.centre_votes else 'instance head: plain'
     if model.refine:
         head += ' + full-resolution refinement'
