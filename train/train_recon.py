@@ -26,7 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from gf.data import SimDataset  # noqa: E402
 from gf.losses import (  # noqa: E402
     LAMBDA_DICE, LAMBDA_DIRECT, LAMBDA_FOCAL, LAMBDA_PULL, LAMBDA_PUSH, LAMBDA_RENDER, ROOM_VOTE, depth_loss,
-    assignment_losses, direct_losses, rendered_losses, vote_loss)
+    assignment_losses, direct_losses, rendered_losses, room_gate_loss, vote_loss)
 from gf.model import GroupForwardMini, parameter_count  # noqa: E402
 from eval_recon import evaluate  # noqa: E402
 
@@ -82,6 +82,10 @@ def main():
                         help='dice + focal on the unrendered assignment probabilities of sampled pixels '
                              '(gf.losses.assignment_losses), weighted as the rendered ones times this '
                              'factor (1 when given without a value)')
+    parser.add_argument('--room-gate', type=float, default=0.0,
+                        help='gate every pixel\'s embedding towards one learned room vector by a predicted '
+                             'wall-or-floor probability (gf.model room_gate), its cross-entropy '
+                             '(gf.losses.room_gate_loss) weighted by this; 0 = no gate')
     parser.add_argument('--snapshot-every', type=int, default=0,
                         help='also keep the weights every N steps (snapshot_<step>.pt), for equal-step comparisons')
     parser.add_argument('--out', required=True)
@@ -98,7 +102,7 @@ def main():
     assert train.split == 'train' and val.split == 'val', 'train and val must come from their own splits'
     selection = range(max(0, len(val) - args.val_windows), len(val))
     model = GroupForwardMini(mode=args.mode, refine=args.refine,
-                             centre_votes=False if args.no_votes else None)
+                             centre_votes=False if args.no_votes else None, room_gate=args.room_gate > 0)
     print(f'GroupForward-mini ({args.mode}): {parameter_count(model) / 1e6:.2f} M parameters; '
           f'{len(train)} train windows, {len(val)} val windows')
     loader = torch.utils.data.DataLoader(train, batch_size=args.batch, shuffle=True, drop_last=True,
@@ -115,7 +119,7 @@ def main():
     step = 0
     log = open(out / 'log.csv', 'w', newline='')
     writer = csv.writer(log)
-    writer.writerow(['step', 'stage', 'seconds', 'loss', 'depth', 'pull', 'push', 'render', 'photometric', 'vote', 'assignment'])
+    writer.writerow(['step', 'stage', 'seconds', 'loss', 'depth', 'pull', 'push', 'render', 'photometric', 'vote', 'assignment', 'room'])
     generator = torch.Generator().manual_seed(args.seed)
     done = False
     while not done:
@@ -127,7 +131,7 @@ def main():
                 break
             stage = stage_of(progress, args.stages)
             model.train()
-            depth, gaussians, embeddings, votes = model.forward_with_votes(
+            depth, gaussians, embeddings, votes, room_logits = model.forward_training(
                 batch['images'], batch['points'] if args.mode == 'rgbd' else None)
             l_depth = depth_loss(depth, batch['depth'])
             pull, push = direct_losses(embeddings, batch['instance'], generator=generator, hard_push=args.hard_push)
@@ -139,7 +143,9 @@ def main():
             if args.vote_weight > 0 and votes is not None:
                 l_vote = vote_loss(votes, batch['points'], batch['depth'], batch['instance'],
                                    ROOM_VOTE if args.room_vote else None)
-            l_direct = LAMBDA_PULL * pull + LAMBDA_PUSH * push + args.vote_weight * l_vote + l_assignment
+            l_room = room_gate_loss(room_logits, batch['instance']) if room_logits is not None else torch.zeros(())
+            l_direct = (LAMBDA_PULL * pull + LAMBDA_PUSH * push + args.vote_weight * l_vote + l_assignment
+                        + args.room_gate * l_room)
             l_render = torch.zeros(())
             l_photo = torch.zeros(())
             if not args.no_rendered:
@@ -168,13 +174,14 @@ def main():
                 torch.save(model.state_dict(), out / f'snapshot_{step}.pt')
             writer.writerow([step, stage, f'{elapsed:.1f}', f'{loss.item():.5f}', f'{l_depth.item():.5f}',
                              f'{pull.item():.5f}', f'{push.item():.5f}', f'{l_render.item():.5f}',
-                             f'{l_photo.item():.5f}', f'{l_vote.item():.5f}', f'{l_assignment.item():.5f}'])
+                             f'{l_photo.item():.5f}', f'{l_vote.item():.5f}', f'{l_assignment.item():.5f}',
+                             f'{l_room.item():.5f}'])
             if step % 20 == 0:
                 log.flush()
                 print(f'step {step} stage {stage} {elapsed / 60:.1f} min: depth {l_depth.item():.4f} '
                       f'pull {pull.item():.4f} push {push.item():.4f} render {l_render.item():.4f} '
                       f'photometric {l_photo.item():.4f} vote {l_vote.item():.4f} '
-                      f'assignment {l_assignment.item():.4f}', flush=True)
+                      f'assignment {l_assignment.item():.4f} room {l_room.item():.4f}', flush=True)
             now = time.perf_counter()
             if stage >= 2 and now - last_eval >= args.eval_every * 60.0:
                 last_eval = now

@@ -14,6 +14,11 @@ U-Net decoder, and three heads (DESIGN §4 contract):
   features of the vote and the free features gives the embedding: every pixel of one object, in
   every view, should vote for the same 3D point, so consistency across views needs no learned
   appearance correspondence (spatial embeddings, Neven et al. 2019, lifted to 3D). Same losses.
+  With `room_gate` the head also predicts, per pixel, a logit that the pixel is wall or floor, and
+  the embedding becomes g·r + (1 − g)·ê with g = sigmoid(logit), ê the unit embedding and r a learned
+  unit vector: the room (one instance spread over every view) collapses to one point instead of a
+  manifold that grouping can split, and telling a white cabinet from the white wall behind it is a
+  per-pixel classification with its own loss (gf.losses.room_gate_loss) rather than a margin.
 
 RGB-D mode (the node's default) takes `points` (world XYZ from sensor depth, centred and scaled as
 gf.data.world_points does) next to `images`; RGB mode (the paper's setting) takes images only and the
@@ -80,11 +85,12 @@ def positional_encoding(height, width, dim):
 
 class GroupForwardMini(nn.Module):
     def __init__(self, mode='rgbd', height=96, width=128, embedding_dim=8, width_mult=1.0, refine=False,
-                 centre_votes=None):
+                 centre_votes=None, room_gate=False):
         super().__init__()
         assert mode in ('rgbd', 'rgb')
         self.mode = mode
         self.refine = refine
+        self.room_gate = room_gate
         self.centre_votes = (mode == 'rgbd') if centre_votes is None else centre_votes
         assert not (self.centre_votes and mode != 'rgbd'), 'centre votes need world points (RGB-D mode)'
         self.embedding_dim = embedding_dim
@@ -109,8 +115,10 @@ class GroupForwardMini(nn.Module):
             nn.GELU(),
             nn.Conv2d(64, 64, 3, padding=1),
             nn.GELU(),
-            nn.Conv2d(64, VOTE_FEATURES + 3 if self.centre_votes else embedding_dim, 1),
+            nn.Conv2d(64, (VOTE_FEATURES + 3 if self.centre_votes else embedding_dim) + int(room_gate), 1),
         )
+        if room_gate:
+            self.instance_room_vector = nn.Parameter(F.normalize(torch.randn(embedding_dim), dim=0))
         if self.centre_votes:
             self.instance_vote_mlp = nn.Sequential(
                 nn.Conv2d(3 * (1 + 2 * VOTE_FREQUENCIES) + VOTE_FEATURES, 64, 1),
@@ -136,7 +144,8 @@ class GroupForwardMini(nn.Module):
     def from_state_dict(cls, state, mode):
         """A model with the architecture the checkpoint `state` was trained with, its weights loaded."""
         model = cls(mode=mode, refine=any(k.startswith('instance_refine') for k in state),
-                    centre_votes=any(k.startswith('instance_vote_mlp') for k in state))
+                    centre_votes=any(k.startswith('instance_vote_mlp') for k in state),
+                    room_gate='instance_room_vector' in state)
         model.load_state_dict(state)
         return model
 
@@ -147,6 +156,11 @@ class GroupForwardMini(nn.Module):
     def forward_with_votes(self, images, points=None):
         """(depth, gaussians, embeddings, votes): also the half-resolution centre votes [B,V,3,H/2,W/2]
         (None without `centre_votes`), for the training-only vote loss."""
+        return self.forward_training(images, points)[:4]
+
+    def forward_training(self, images, points=None):
+        """(depth, gaussians, embeddings, votes, room logits): also the full-resolution room logits
+        [B,V,H,W] (None without `room_gate`), for the training-only room loss."""
         b, v = images.shape[0], images.shape[1]
         x = images.flatten(0, 1)
         if self.mode == 'rgbd':
@@ -181,6 +195,10 @@ class GroupForwardMini(nn.Module):
         x_half = down(x)
         features = torch.cat([down(d0), d1, up(d2), down(log_depth), x_half], dim=1)
         embeddings = self.instance_head(features)
+        room_logit = None
+        if self.room_gate:
+            room_logit = F.interpolate(embeddings[:, -1:], scale_factor=2.0, mode='bilinear', align_corners=False)
+            embeddings = embeddings[:, :-1]
         vote = None
         if self.centre_votes:
             vote = x_half[:, 3:6] + embeddings[:, :3]
@@ -189,8 +207,14 @@ class GroupForwardMini(nn.Module):
         embeddings = F.interpolate(embeddings, scale_factor=2.0, mode='bilinear', align_corners=False)
         if self.refine:
             embeddings = embeddings + self.instance_refine(torch.cat([d0, embeddings], dim=1))
+        if self.room_gate:
+            unit = embeddings / embeddings.norm(dim=1, keepdim=True).clamp_min(1e-6)
+            room = self.instance_room_vector / self.instance_room_vector.norm().clamp_min(1e-6)
+            gate = torch.sigmoid(room_logit)
+            embeddings = gate * room.reshape(1, -1, 1, 1) + (1 - gate) * unit
         shape = lambda t: t.reshape(b, v, *t.shape[1:])  # noqa: E731
-        return shape(depth[:, 0]), shape(gaussians), shape(embeddings), None if vote is None else shape(vote)
+        return (shape(depth[:, 0]), shape(gaussians), shape(embeddings), None if vote is None else shape(vote),
+                None if room_logit is None else shape(room_logit[:, 0]))
 
 
 def parameter_count(model):
