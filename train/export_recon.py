@@ -73,11 +73,11 @@ def main():
     head = 'instance head: 3D centre votes' if model.centre_votes else 'instance head: plain'
     if model.refine:
         head += ' + full-resolution refinement'
-    if model.room_gate:
-        head += f" + room gate (cross-entropy weight {train_args.get('room_gate', 0):g})"
     if train_args.get('vote_weight'):
         room = '; walls and floor vote below the floor' if train_args.get('room_vote') else ''
         head += f" (supervised by the centre-vote loss, weight {train_args['vote_weight']:g}{room})"
+    if model.room_gate:
+        head += f"; room gate (wall-or-floor cross-entropy, weight {train_args.get('room_gate', 0):g})"
     manifest = f'''# GroupForward-mini ({args.mode}), trained here on the simulator by train/train_recon.py. Not a
 # pretrained paper model: {parameter_count(model) / 1e6:.2f} M parameters, small synthetic rooms only.
 name = "{args.name}"
