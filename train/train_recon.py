@@ -119,7 +119,8 @@ def main():
     step = 0
     log = open(out / 'log.csv', 'w', newline='')
     writer = csv.writer(log)
-    writer.writerow(['step', 'stage', 'seconds', 'loss', 'depth', 'pull', 'push', 'render', 'photometric', 'vote', 'assignment', 'room'])
+    writer.writerow(['step', 'stage', 'seconds', 'loss', 'depth', 'pull', 'push', 'render', 'photometric', 'vote',
+                     'assignment', 'room'])
     generator = torch.Generator().manual_seed(args.seed)
     done = False
     while not done:

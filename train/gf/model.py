@@ -17,8 +17,9 @@ U-Net decoder, and three heads (DESIGN §4 contract):
   With `room_gate` the head also predicts, per pixel, a logit that the pixel is wall or floor, and
   the embedding becomes g·r + (1 − g)·ê with g = sigmoid(logit), ê the unit embedding and r a learned
   unit vector: the room (one instance spread over every view) shrinks towards one point (the node's
-  centroid merge joins the density modes HDBSCAN still finds in it), and telling a white cabinet from the white wall behind it is a
-  per-pixel classification with its own loss (gf.losses.room_gate_loss) rather than a margin.
+  centroid merge joins the density modes HDBSCAN still finds in it), and telling a white cabinet
+  from the white wall behind it is a per-pixel classification with its own loss
+  (gf.losses.room_gate_loss) rather than a margin.
 
 RGB-D mode (the node's default) takes `points` (world XYZ from sensor depth, centred and scaled as
 gf.data.world_points does) next to `images`; RGB mode (the paper's setting) takes images only and the
