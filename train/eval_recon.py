@@ -229,9 +229,37 @@ def evaluate(model, dataset, mode, indices=None, grouping=GROUPING):
             'abs_rel_median_scaled': float(np.mean(abs_rel_scaled)), 'windows': len(indices)}
 
 
+class OnnxModel:
+    """An exported model (models/<name>.onnx) behind the PyTorch model's call, so shipped models are
+    scored by the same code as checkpoints."""
+
+    def __init__(self, path, threads):
+        import onnxruntime as ort
+
+        options = ort.SessionOptions()
+        options.intra_op_num_threads = threads
+        self.session = ort.InferenceSession(str(path), options, providers=['CPUExecutionProvider'])
+
+    def eval(self):
+        return self
+
+    def __call__(self, images, points=None):
+        feed = {'images': images.numpy()}
+        if points is not None:
+            feed['points'] = points.numpy()
+        return tuple(torch.from_numpy(t) for t in self.session.run(['depth', 'gaussians', 'embeddings'], feed))
+
+
+def load_model(path, mode, threads):
+    """A checkpoint (.pt) or an exported model (.onnx)."""
+    if str(path).endswith('.onnx'):
+        return OnnxModel(path, threads)
+    return GroupForwardMini.from_state_dict(torch.load(path), mode)
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument('--model', required=True)
+    parser.add_argument('--model', required=True, help='a checkpoint (.pt) or an exported model (.onnx)')
     parser.add_argument('--val', required=True)
     parser.add_argument('--mode', choices=['rgbd', 'rgb'], default='rgbd')
     parser.add_argument('--first', type=int, default=0, help='first val window scored')
@@ -243,7 +271,7 @@ def main():
     grouping = tuple(float(v) for v in args.grouping.split(','))
     assert len(grouping) == 4, '--grouping takes four numbers'
     torch.set_num_threads(args.threads)
-    model = GroupForwardMini.from_state_dict(torch.load(args.model), args.mode)
+    model = load_model(args.model, args.mode, args.threads)
     dataset = SimDataset(args.val, args.mode)
     end = len(dataset) if args.windows is None else min(len(dataset), args.first + args.windows)
     print(json.dumps(evaluate(model, dataset, args.mode, range(args.first, end), grouping)))

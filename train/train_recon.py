@@ -86,12 +86,20 @@ def main():
                         help='gate every pixel\'s embedding towards one learned room vector by a predicted '
                              'wall-or-floor probability (gf.model room_gate), its cross-entropy '
                              '(gf.losses.room_gate_loss) weighted by this; 0 = no gate')
+    parser.add_argument('--sharp-gate', action='store_true',
+                        help='with --room-gate: correct the upsampled room logit at full resolution '
+                             '(gf.model sharp_gate), so the gate follows object outlines pixel by pixel')
+    parser.add_argument('--gate-per-pixel', action='store_true',
+                        help='with --room-gate: its cross-entropy weighs every pixel alike instead of the room '
+                             'and the objects equally (gf.losses.room_gate_loss)')
     parser.add_argument('--snapshot-every', type=int, default=0,
                         help='also keep the weights every N steps (snapshot_<step>.pt), for equal-step comparisons')
     parser.add_argument('--out', required=True)
     args = parser.parse_args()
     if args.room_vote and args.vote_weight <= 0:
         parser.error('--room-vote needs --vote-weight > 0 (without it the vote loss is off)')
+    if (args.sharp_gate or args.gate_per_pixel) and args.room_gate <= 0:
+        parser.error('--sharp-gate and --gate-per-pixel need --room-gate > 0')
 
     torch.set_num_threads(args.threads)
     torch.manual_seed(args.seed)
@@ -102,7 +110,8 @@ def main():
     assert train.split == 'train' and val.split == 'val', 'train and val must come from their own splits'
     selection = range(max(0, len(val) - args.val_windows), len(val))
     model = GroupForwardMini(mode=args.mode, refine=args.refine,
-                             centre_votes=False if args.no_votes else None, room_gate=args.room_gate > 0)
+                             centre_votes=False if args.no_votes else None, room_gate=args.room_gate > 0,
+                             sharp_gate=args.sharp_gate)
     print(f'GroupForward-mini ({args.mode}): {parameter_count(model) / 1e6:.2f} M parameters; '
           f'{len(train)} train windows, {len(val)} val windows')
     loader = torch.utils.data.DataLoader(train, batch_size=args.batch, shuffle=True, drop_last=True,
@@ -144,7 +153,8 @@ def main():
             if args.vote_weight > 0 and votes is not None:
                 l_vote = vote_loss(votes, batch['points'], batch['depth'], batch['instance'],
                                    ROOM_VOTE if args.room_vote else None)
-            l_room = room_gate_loss(room_logits, batch['instance']) if room_logits is not None else torch.zeros(())
+            l_room = (room_gate_loss(room_logits, batch['instance'], balanced=not args.gate_per_pixel)
+                      if room_logits is not None else torch.zeros(()))
             l_direct = (LAMBDA_PULL * pull + LAMBDA_PUSH * push + args.vote_weight * l_vote + l_assignment
                         + args.room_gate * l_room)
             l_render = torch.zeros(())

@@ -127,16 +127,21 @@ def vote_loss(votes, points, depth, instance, room_target=None):
     return torch.stack(losses).mean()
 
 
-def room_gate_loss(room_logits, instance):
+def room_gate_loss(room_logits, instance, balanced=True):
     """Room gate supervision (training only; the gate is this project's, gf.model `room_gate`):
-    binary cross-entropy of the room logits [B,V,H,W] against walls and floor (instance 0), the
-    room's pixels and the objects' weighted equally (the room covers ~3/4 of a window), batch mean."""
+    binary cross-entropy of the room logits [B,V,H,W] against walls and floor (instance 0), batch mean.
+    `balanced`: the room's pixels and the objects' weighted equally (the room covers ~3/4 of a
+    window); otherwise every pixel alike, which puts the gate's boundary where the fewest pixels are
+    wrong (a balanced loss pays 3× more for an object pixel, so objects grow into the room)."""
     losses = []
     for logits, labels in zip(room_logits, instance):
         room = labels == 0
         bce = F.binary_cross_entropy_with_logits(logits, room.to(logits.dtype), reduction='none')
-        parts = [bce[mask].mean() for mask in (room, ~room) if mask.any()]
-        losses.append(torch.stack(parts).mean())
+        if balanced:
+            parts = [bce[mask].mean() for mask in (room, ~room) if mask.any()]
+            losses.append(torch.stack(parts).mean())
+        else:
+            losses.append(bce.mean())
     return torch.stack(losses).mean()
 
 

@@ -19,7 +19,10 @@ U-Net decoder, and three heads (DESIGN §4 contract):
   unit vector: the room (one instance spread over every view) shrinks towards one point (the node's
   centroid merge joins the density modes HDBSCAN still finds in it), and telling a white cabinet
   from the white wall behind it is a per-pixel classification with its own loss
-  (gf.losses.room_gate_loss) rather than a margin.
+  (gf.losses.room_gate_loss) rather than a margin. With `sharp_gate` a small full-resolution head
+  over the finest decoder features and the raw input corrects the upsampled room logit: the
+  half-resolution gate lets objects grow a pixel or two into the room, and those room pixels are
+  most of what the shipped room-gate model's grouping gets wrong (README, Training).
 
 RGB-D mode (the node's default) takes `points` (world XYZ from sensor depth, centred and scaled as
 gf.data.world_points does) next to `images`; RGB mode (the paper's setting) takes images only and the
@@ -86,12 +89,14 @@ def positional_encoding(height, width, dim):
 
 class GroupForwardMini(nn.Module):
     def __init__(self, mode='rgbd', height=96, width=128, embedding_dim=8, width_mult=1.0, refine=False,
-                 centre_votes=None, room_gate=False):
+                 centre_votes=None, room_gate=False, sharp_gate=False):
         super().__init__()
         assert mode in ('rgbd', 'rgb')
+        assert room_gate or not sharp_gate, 'the sharp gate refines the room gate'
         self.mode = mode
         self.refine = refine
         self.room_gate = room_gate
+        self.sharp_gate = sharp_gate
         self.centre_votes = (mode == 'rgbd') if centre_votes is None else centre_votes
         assert not (self.centre_votes and mode != 'rgbd'), 'centre votes need world points (RGB-D mode)'
         self.embedding_dim = embedding_dim
@@ -134,6 +139,15 @@ class GroupForwardMini(nn.Module):
         # Rooms are metres deep: start the depth head near 2.5 m.
         nn.init.zeros_(self.depth_head.weight)
         nn.init.constant_(self.depth_head.bias, math.log(2.5))
+        if sharp_gate:
+            # A full-resolution correction of the upsampled room logit over the finest features and the
+            # raw input, starting at zero (created last, so the other layers draw the same
+            # initial weights as without it): where an object meets the wall or floor, the half-resolution
+            # logit can only interpolate across the 2×2 block.
+            self.instance_room_refine = nn.Sequential(
+                nn.Conv2d(c[0] + cin + 1, 16, 3, padding=1), nn.GELU(), nn.Conv2d(16, 1, 3, padding=1))
+            nn.init.zeros_(self.instance_room_refine[2].weight)
+            nn.init.zeros_(self.instance_room_refine[2].bias)
 
     def reconstruction_parameters(self):
         return [p for name, p in self.named_parameters() if not name.startswith('instance_')]
@@ -146,7 +160,8 @@ class GroupForwardMini(nn.Module):
         """A model with the architecture the checkpoint `state` was trained with, its weights loaded."""
         model = cls(mode=mode, refine=any(k.startswith('instance_refine') for k in state),
                     centre_votes=any(k.startswith('instance_vote_mlp') for k in state),
-                    room_gate='instance_room_vector' in state)
+                    room_gate='instance_room_vector' in state,
+                    sharp_gate=any(k.startswith('instance_room_refine') for k in state))
         model.load_state_dict(state)
         return model
 
@@ -200,6 +215,8 @@ class GroupForwardMini(nn.Module):
         if self.room_gate:
             room_logit = F.interpolate(embeddings[:, -1:], scale_factor=2.0, mode='bilinear', align_corners=False)
             embeddings = embeddings[:, :-1]
+            if self.sharp_gate:
+                room_logit = room_logit + self.instance_room_refine(torch.cat([d0, x, room_logit], dim=1))
         vote = None
         if self.centre_votes:
             vote = x_half[:, 3:6] + embeddings[:, :3]
