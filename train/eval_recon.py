@@ -18,7 +18,9 @@ Objects: `found` is the share of objects (≥ 50 pixels) whose majority cluster 
 room's, and no other object dominates it), `in_room` the share merged into the room's cluster
 (`in_room_by_class`: [merged, objects] per class), `noise` the share left mostly as noise and
 `merged` the rest: merged into another object's cluster. `room_kept`: the share of the room's pixels
-in its largest cluster (mean over windows); `room_split`: windows where that share is under 0.9.
+in its largest cluster (mean over windows); `room_split`: windows where that share is under 0.9;
+`room_lost_near_objects`: of the room's pixels outside its largest cluster (pooled over windows), the
+share within 2 px of an object (objects grown into the room, against the room split in two).
 
 Diagnostics of the embeddings themselves, without HDBSCAN: `oracle_ari` assigns every pixel to the
 nearest *true* instance centroid of the embeddings (the best any clustering of them could do with
@@ -168,6 +170,7 @@ def evaluate(model, dataset, mode, indices=None, grouping=GROUPING):
     aris, raw_aris, abs_rel, delta, pair_aris, clusters, instances = [], [], [], [], [], [], []
     oracle_aris, edge, inner, found = [], np.zeros(2, int), np.zeros(2, int), np.zeros(4, int)
     abs_rel_room, abs_rel_objects, abs_rel_scaled, room_kept = [], [], [], []
+    room_lost = np.zeros(2, int)  # room pixels outside the room's largest cluster: near an object, all
     indices = list(range(len(dataset))) if indices is None else list(indices)
     class_names = {c['id']: c['name'] for c in dataset.manifest['classes']}
     by_class = {}  # class name -> [objects merged into the room, objects]
@@ -184,6 +187,11 @@ def evaluate(model, dataset, mode, indices=None, grouping=GROUPING):
         room_labels = labels[truth == 0]
         room_clusters = np.bincount(room_labels[room_labels >= 0])
         room_kept.append(room_clusters.max() / room_labels.size if room_clusters.size else 0.0)
+        truth_views = item['instance'].numpy()
+        if room_clusters.size:
+            lost = (truth == 0) & (labels != room_clusters.argmax())
+            near = np.stack([ndimage.distance_transform_edt(view == 0) for view in truth_views]).reshape(-1) <= 2
+            room_lost += [int((lost & near).sum()), int(lost.sum())]
         raw_aris.append(adjusted_rand_score(truth[sample], raw))
         clusters.append(len(np.unique(labels[labels >= 0])))
         objects = dataset.objects(i)
@@ -194,7 +202,7 @@ def evaluate(model, dataset, mode, indices=None, grouping=GROUPING):
             tally = by_class.setdefault(class_of[k], [0, 0])
             tally[0] += merged
             tally[1] += 1
-        oracle, edge_hits, inner_hits = oracle_assignment(e, item['instance'].numpy())
+        oracle, edge_hits, inner_hits = oracle_assignment(e, truth_views)
         oracle_aris.append(oracle)
         edge += edge_hits
         inner += inner_hits
@@ -222,6 +230,7 @@ def evaluate(model, dataset, mode, indices=None, grouping=GROUPING):
             'merged': float((found[3] - found[0] - found[1] - found[2]) / max(found[3], 1)),
             'in_room_by_class': dict(sorted(by_class.items())),
             'room_kept': float(np.mean(room_kept)), 'room_split': int(np.sum(np.array(room_kept) < ROOM_SPLIT)),
+            'room_lost_near_objects': float(room_lost[0] / max(room_lost[1], 1)),
             'oracle_ari': float(np.mean(oracle_aris)),
             'oracle_edge': float(edge[0] / max(edge[1], 1)), 'oracle_inner': float(inner[0] / max(inner[1], 1)),
             'abs_rel': float(np.mean(abs_rel)), 'delta1': float(np.mean(delta)),
@@ -250,11 +259,16 @@ class OnnxModel:
         return tuple(torch.from_numpy(t) for t in self.session.run(['depth', 'gaussians', 'embeddings'], feed))
 
 
-def load_model(path, mode, threads):
-    """A checkpoint (.pt) or an exported model (.onnx)."""
+def load_model(path, mode, threads, room_bias=0.0):
+    """A checkpoint (.pt), its room logit shifted by `room_bias` (GroupForwardMini.shift_room_logit),
+    or an exported model (.onnx, scored as it is)."""
     if str(path).endswith('.onnx'):
+        assert not room_bias, 'an exported model is scored as shipped'
         return OnnxModel(path, threads)
-    return GroupForwardMini.from_state_dict(torch.load(path), mode)
+    model = GroupForwardMini.from_state_dict(torch.load(path), mode)
+    if room_bias:
+        model.shift_room_logit(room_bias)
+    return model
 
 
 def main():
@@ -265,13 +279,16 @@ def main():
     parser.add_argument('--first', type=int, default=0, help='first val window scored')
     parser.add_argument('--windows', type=int, default=None, help='how many (default: to the end)')
     parser.add_argument('--threads', type=int, default=2)
+    parser.add_argument('--room-bias', type=float, default=0.0,
+                        help='a checkpoint with a room gate: add this to its room logit (the calibration '
+                             'export_recon.py --room-bias bakes in)')
     parser.add_argument('--grouping', default=','.join(map(str, GROUPING)),
                         help='min_cluster_size,min_samples,noise_distance,merge_distance')
     args = parser.parse_args()
     grouping = tuple(float(v) for v in args.grouping.split(','))
     assert len(grouping) == 4, '--grouping takes four numbers'
     torch.set_num_threads(args.threads)
-    model = load_model(args.model, args.mode, args.threads)
+    model = load_model(args.model, args.mode, args.threads, args.room_bias)
     dataset = SimDataset(args.val, args.mode)
     end = len(dataset) if args.windows is None else min(len(dataset), args.first + args.windows)
     print(json.dumps(evaluate(model, dataset, args.mode, range(args.first, end), grouping)))

@@ -28,10 +28,15 @@ def main():
     parser.add_argument('--mode', choices=['rgbd', 'rgb'], default='rgbd')
     parser.add_argument('--summary', required=True, help='summary.json of the training run')
     parser.add_argument('--name', required=True)
+    parser.add_argument('--room-bias', type=float, default=0.0,
+                        help='add this to the room gate\'s logit before export (a calibration chosen on the '
+                             'selection windows with eval_recon.py --room-bias; the report must be scored with it)')
     parser.add_argument('--report', required=True,
                         help='eval_recon.py output (JSON) on the val windows held out from checkpoint selection')
     args = parser.parse_args()
     model = GroupForwardMini.from_state_dict(torch.load(args.model), args.mode)
+    if args.room_bias:
+        model.shift_room_logit(args.room_bias)
     model.eval()
     summary = json.loads(Path(args.summary).read_text())
     height, width = 96, 128
@@ -77,7 +82,11 @@ def main():
         room = '; walls and floor vote below the floor' if train_args.get('room_vote') else ''
         head += f" (supervised by the centre-vote loss, weight {train_args['vote_weight']:g}{room})"
     if model.room_gate:
-        head += f"; room gate (wall-or-floor cross-entropy, weight {train_args.get('room_gate', 0):g})"
+        gate = 'full-resolution ' if model.sharp_gate else ''
+        weighing = ', per pixel' if train_args.get('gate_per_pixel') else ''
+        head += f"; {gate}room gate (wall-or-floor cross-entropy{weighing}, weight {train_args.get('room_gate', 0):g})"
+        if args.room_bias:
+            head += f", its logit shifted by {args.room_bias:+g} after training (chosen on the selection windows)"
     manifest = f'''# GroupForward-mini ({args.mode}), trained here on the simulator by train/train_recon.py. Not a
 # pretrained paper model: {parameter_count(model) / 1e6:.2f} M parameters, small synthetic rooms only.
 name = "{args.name}"

@@ -165,6 +165,17 @@ class GroupForwardMini(nn.Module):
         model.load_state_dict(state)
         return model
 
+    @torch.no_grad()
+    def shift_room_logit(self, bias):
+        """Add `bias` to the room gate's logit everywhere (a calibration chosen after training on the
+        selection windows; positive keeps more boundary pixels in the room): the last layer's bias
+        of whichever head gives the final logit."""
+        assert self.room_gate, 'no room gate to calibrate'
+        if self.sharp_gate:
+            self.instance_room_refine[2].bias += bias
+        else:
+            self.instance_head[4].bias[-1] += bias
+
     def forward(self, images, points=None):
         """(depth, gaussians, embeddings): the exported contract."""
         return self.forward_with_votes(images, points)[:3]
