@@ -22,6 +22,16 @@ from gf.model import GroupForwardMini, parameter_count  # noqa: E402
 MODELS = Path(__file__).resolve().parents[1] / 'models'
 
 
+def benchmarks_section(report, size, parameters):
+    """The manifest's [benchmarks] table: `report` (eval_recon.py JSON), the ONNX file's size in bytes."""
+    section = '\n[benchmarks]\n# train/eval_recon.py on the val windows held out from checkpoint selection.\n'
+    for key in ('ari', 'ari_hdbscan', 'pair_ari', 'pairs', 'clusters', 'instances', 'found', 'in_room', 'objects',
+                'oracle_ari', 'abs_rel', 'delta1', 'windows'):
+        if report.get(key) is not None:
+            section += f'val_{key} = {float(report[key]):.4f}\n'
+    return section + f'size_mb = {size / 1e6:.2f}\nparameters_m = {parameters / 1e6:.2f}\n'
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument('--model', required=True)
@@ -119,12 +129,7 @@ shape = [1, "V", 11, "H", "W"]
 name = "embeddings"
 shape = [1, "V", 8, "H", "W"]
 '''
-    manifest += '\n[benchmarks]\n# train/eval_recon.py on the val windows held out from checkpoint selection.\n'
-    for key in ('ari', 'ari_hdbscan', 'pair_ari', 'pairs', 'clusters', 'instances', 'found', 'in_room', 'objects',
-                'oracle_ari', 'abs_rel', 'delta1', 'windows'):
-        if report.get(key) is not None:
-            manifest += f'val_{key} = {float(report[key]):.4f}\n'
-    manifest += f'size_mb = {size / 1e6:.2f}\nparameters_m = {parameter_count(model) / 1e6:.2f}\n'
+    manifest += benchmarks_section(report, size, parameter_count(model))
     (MODELS / f'{args.name}.toml').write_text(manifest)
     print(f'wrote {onnx_path} ({size / 1e6:.1f} MB) and its manifest; parity {worst:.2e}')
 
