@@ -4,10 +4,12 @@ place, and rewrite its manifest's provenance and benchmarks: the same calibratio
 checkpoint is gone. Choose the shift on the selection windows first, and score the held-out ones
 with it (eval_recon.py on a calibrated copy), e.g.
 
-  train/.venv/bin/python train/calibrate_recon.py --name groupforward-mini-rgbd --room-bias 2 --out /tmp/b2.onnx
-  train/.venv/bin/python train/eval_recon.py --model /tmp/b2.onnx --val train/data/val --first 76   # selection
-  train/.venv/bin/python train/eval_recon.py --model /tmp/b2.onnx --val train/data/val --windows 76 > report.json
-  train/.venv/bin/python train/calibrate_recon.py --name groupforward-mini-rgbd --room-bias 2 --report report.json
+  git show 60f827b:models/groupforward-mini-rgbd.onnx > /tmp/unshifted.onnx
+  T="train/.venv/bin/python train"; M="--name groupforward-mini-rgbd --model /tmp/unshifted.onnx"
+  $T/calibrate_recon.py $M --room-bias 2 --out /tmp/b2.onnx
+  $T/eval_recon.py --model /tmp/b2.onnx --val train/data/val --first 76                  # selection
+  $T/eval_recon.py --model /tmp/b2.onnx --val train/data/val --windows 76 > /tmp/report.json
+  $T/calibrate_recon.py $M --room-bias 2 --report /tmp/report.json                      # ships it
 """
 
 import argparse
@@ -51,6 +53,8 @@ def outputs(model, feed):
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument('--name', required=True, help='models/<name>.onnx and its manifest')
+    parser.add_argument('--model', help='the exported model to shift (default models/<name>.onnx); a sweep starts '
+                                        'from the unshifted file, e.g. one taken out of git')
     parser.add_argument('--room-bias', type=float, required=True)
     parser.add_argument('--out', help='write the calibrated ONNX here instead (to score it); the manifest is untouched')
     parser.add_argument('--report', help='eval_recon.py JSON of the calibrated model on the held-out windows')
@@ -58,7 +62,7 @@ def main():
     if not args.out and not args.report:
         parser.error('in place needs --report (the manifest\'s benchmarks must describe the calibrated model)')
     path = MODELS / f'{args.name}.onnx'
-    original = onnx.load(path)
+    original = onnx.load(args.model or path)
     calibrated = shifted(original, args.room_bias)
     # Only the embeddings may change.
     generator = np.random.default_rng(0)
