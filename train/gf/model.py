@@ -22,7 +22,8 @@ U-Net decoder, and three heads (DESIGN §4 contract):
   (gf.losses.room_gate_loss) rather than a margin. With `sharp_gate` a small full-resolution head
   over the finest decoder features and the raw input corrects the upsampled room logit: the
   half-resolution gate lets objects grow a pixel or two into the room, and those room pixels are
-  most of what the shipped room-gate model's grouping gets wrong (README, Training).
+  most of what the room-gate model's grouping gets wrong (README, Training). An experiment: it
+  removed most of that bleed but did not beat the half-resolution gate's ARI in one seed.
 
 RGB-D mode (the node's default) takes `points` (world XYZ from sensor depth, centred and scaled as
 gf.data.world_points does) next to `images`; RGB mode (the paper's setting) takes images only and the
@@ -141,9 +142,8 @@ class GroupForwardMini(nn.Module):
         nn.init.constant_(self.depth_head.bias, math.log(2.5))
         if sharp_gate:
             # A full-resolution correction of the upsampled room logit over the finest features and the
-            # raw input, starting at zero (created last, so the other layers draw the same
-            # initial weights as without it): where an object meets the wall or floor, the half-resolution
-            # logit can only interpolate across the 2×2 block.
+            # raw input, starting at zero and created last (the other layers draw the same initial
+            # weights as without it): the half-resolution logit can only interpolate across 2×2 blocks.
             self.instance_room_refine = nn.Sequential(
                 nn.Conv2d(c[0] + cin + 1, 16, 3, padding=1), nn.GELU(), nn.Conv2d(16, 1, 3, padding=1))
             nn.init.zeros_(self.instance_room_refine[2].weight)
