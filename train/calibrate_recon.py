@@ -20,15 +20,13 @@ from pathlib import Path
 
 import numpy as np
 import onnx
-import onnxruntime as ort
+import torch
 from onnx import numpy_helper
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from export_recon import MODELS, benchmarks_section  # noqa: E402
-
-# The layer whose bias ends in the final room logit, as GroupForwardMini.shift_room_logit picks it.
-SHARP_GATE_BIAS = 'instance_room_refine.2.bias'
-HALF_GATE_BIAS = 'instance_head.4.bias'
+from eval_recon import OnnxModel  # noqa: E402
+from export_recon import MODELS, benchmarks_section, room_shift_note  # noqa: E402
+from gf.model import room_logit_bias_name  # noqa: E402
 
 
 def shifted(model, bias):
@@ -37,17 +35,12 @@ def shifted(model, bias):
     names = {t.name: i for i, t in enumerate(model.graph.initializer)}
     if 'instance_room_vector' not in names:
         raise SystemExit('this model has no room gate to calibrate')
-    name = SHARP_GATE_BIAS if SHARP_GATE_BIAS in names else HALF_GATE_BIAS
+    name = room_logit_bias_name(sharp_gate=room_logit_bias_name(True) in names)
     tensor = model.graph.initializer[names[name]]
     values = numpy_helper.to_array(tensor).copy()
     values[-1] += bias
     tensor.CopyFrom(numpy_helper.from_array(values, name))
     return model
-
-
-def outputs(model, feed):
-    session = ort.InferenceSession(model.SerializeToString(), providers=['CPUExecutionProvider'])
-    return session.run(['depth', 'gaussians', 'embeddings'], feed)
 
 
 def main():
@@ -66,11 +59,11 @@ def main():
     calibrated = shifted(original, args.room_bias)
     # Only the embeddings may change.
     generator = np.random.default_rng(0)
-    feed = {'images': generator.random((1, 2, 3, 96, 128), np.float32),
-            'points': (generator.standard_normal((1, 2, 3, 96, 128)) * 0.5).astype(np.float32)}
-    before, after = outputs(original, feed), outputs(calibrated, feed)
-    assert np.array_equal(before[0], after[0]) and np.array_equal(before[1], after[1])
-    assert not np.array_equal(before[2], after[2])
+    images = torch.from_numpy(generator.random((1, 2, 3, 96, 128), np.float32))
+    points = torch.from_numpy((generator.standard_normal((1, 2, 3, 96, 128)) * 0.5).astype(np.float32))
+    before, after = (OnnxModel(m.SerializeToString())(images, points) for m in (original, calibrated))
+    assert torch.equal(before[0], after[0]) and torch.equal(before[1], after[1])
+    assert not torch.equal(before[2], after[2])
     out = Path(args.out) if args.out else path
     onnx.save(calibrated, out)
     if args.out:
@@ -78,7 +71,10 @@ def main():
         return
     manifest_path = MODELS / f'{args.name}.toml'
     manifest = manifest_path.read_text()
-    clause = f'; room logit shifted by {args.room_bias:+g} after training (chosen on the selection windows)'
+    clause = f'; {room_shift_note(args.room_bias)}'
+    # The shift describes this run from the unshifted file: any earlier one's words go.
+    earlier = re.escape(f'; {room_shift_note(0.0)}').replace(r'\+0', r'[+-][0-9.e+-]+')
+    manifest = re.sub(earlier, '', manifest)
     manifest = re.sub(r'^(provenance = ".*?)(; depth and)', lambda m: m.group(1) + clause + m.group(2), manifest,
                       count=1, flags=re.M)
     assert clause in manifest, 'the provenance line has an unexpected shape'

@@ -242,12 +242,14 @@ class OnnxModel:
     """An exported model (models/<name>.onnx) behind the PyTorch model's call, so shipped models are
     scored by the same code as checkpoints."""
 
-    def __init__(self, path, threads):
+    def __init__(self, model, threads=1):
+        """`model`: a path, or a serialized ONNX model (bytes)."""
         import onnxruntime as ort
 
         options = ort.SessionOptions()
         options.intra_op_num_threads = threads
-        self.session = ort.InferenceSession(str(path), options, providers=['CPUExecutionProvider'])
+        model = model if isinstance(model, bytes) else str(model)
+        self.session = ort.InferenceSession(model, options, providers=['CPUExecutionProvider'])
 
     def eval(self):
         return self

@@ -22,6 +22,11 @@ from gf.model import GroupForwardMini, parameter_count  # noqa: E402
 MODELS = Path(__file__).resolve().parents[1] / 'models'
 
 
+def room_shift_note(bias):
+    """The provenance's words for a room logit shifted after training (export --room-bias, calibrate_recon)."""
+    return f'room logit shifted by {bias:+g} after training (chosen on the selection windows)'
+
+
 def benchmarks_section(report, size, parameters):
     """The manifest's [benchmarks] table: `report` (eval_recon.py JSON), the ONNX file's size in bytes."""
     section = '\n[benchmarks]\n# train/eval_recon.py on the val windows held out from checkpoint selection.\n'
@@ -96,7 +101,7 @@ def main():
         weighing = ', per pixel' if train_args.get('gate_per_pixel') else ''
         head += f"; {gate}room gate (wall-or-floor cross-entropy{weighing}, weight {train_args.get('room_gate', 0):g})"
         if args.room_bias:
-            head += f", its logit shifted by {args.room_bias:+g} after training (chosen on the selection windows)"
+            head += f'; {room_shift_note(args.room_bias)}'
     manifest = f'''# GroupForward-mini ({args.mode}), trained here on the simulator by train/train_recon.py. Not a
 # pretrained paper model: {parameter_count(model) / 1e6:.2f} M parameters, small synthetic rooms only.
 name = "{args.name}"

@@ -168,13 +168,9 @@ class GroupForwardMini(nn.Module):
     @torch.no_grad()
     def shift_room_logit(self, bias):
         """Add `bias` to the room gate's logit everywhere (a calibration chosen after training on the
-        selection windows; positive keeps more boundary pixels in the room): the last layer's bias
-        of whichever head gives the final logit."""
+        selection windows; positive keeps more boundary pixels in the room)."""
         assert self.room_gate, 'no room gate to calibrate'
-        if self.sharp_gate:
-            self.instance_room_refine[2].bias += bias
-        else:
-            self.instance_head[4].bias[-1] += bias
+        self.get_parameter(room_logit_bias_name(self.sharp_gate))[-1] += bias
 
     def forward(self, images, points=None):
         """(depth, gaussians, embeddings): the exported contract."""
@@ -244,6 +240,13 @@ class GroupForwardMini(nn.Module):
         shape = lambda t: t.reshape(b, v, *t.shape[1:])  # noqa: E731
         return (shape(depth[:, 0]), shape(gaussians), shape(embeddings), None if vote is None else shape(vote),
                 None if room_logit is None else shape(room_logit[:, 0]))
+
+
+def room_logit_bias_name(sharp_gate):
+    """The parameter (also the ONNX initializer) whose last element is the bias of the final room
+    logit: the full-resolution correction's output with `sharp_gate`, else the instance head's
+    last channel."""
+    return 'instance_room_refine.2.bias' if sharp_gate else 'instance_head.4.bias'
 
 
 def parameter_count(model):
