@@ -6,7 +6,7 @@ PYTHON ?= python3
 VENV := .venv
 STAMP := $(VENV)/.installed-$(shell sha256sum tests/python/requirements.txt | cut -c1-16)
 
-.PHONY: all setup build demo test test-rust test-python lint bench golden clean train-setup train-data
+.PHONY: all setup build demo test test-rust test-python lint bench golden clean train-setup train-data train-test
 
 all: test
 
@@ -56,6 +56,10 @@ train-setup:
 train-data: build
 	./target/debug/groupforward sim dataset --split train --samples 2000 --out train/data/train
 	./target/debug/groupforward sim dataset --split val --samples 100 --out train/data/val
+
+# Checks of the training code's geometry (CPU, seconds); like training, not part of CI (torch is ~3 GB).
+train-test: train-setup
+	PYTHONDONTWRITEBYTECODE=1 train/.venv/bin/python -m pytest -q -p no:cacheprovider train/tests
 
 clean:
 	$(CARGO) clean

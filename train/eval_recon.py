@@ -176,9 +176,8 @@ def evaluate(model, dataset, mode, indices=None, grouping=GROUPING):
     by_class = {}  # class name -> [objects merged into the room, objects]
     for i in indices:
         item = dataset[i]
-        images = item['images'][None]
-        points = item['points'][None] if mode == 'rgbd' else None
-        depth, _, embeddings = model(images, points)
+        batch = {key: value[None] for key, value in item.items()}
+        depth, _, embeddings = model(*model_inputs(model, batch, mode))
         e = embeddings[0].permute(0, 2, 3, 1).reshape(-1, embeddings.shape[2])
         e = torch.nn.functional.normalize(e, dim=1).numpy()
         truth = item['instance'].reshape(-1).numpy()
@@ -236,6 +235,13 @@ def evaluate(model, dataset, mode, indices=None, grouping=GROUPING):
             'abs_rel': float(np.mean(abs_rel)), 'delta1': float(np.mean(delta)),
             'abs_rel_room': float(np.nanmean(abs_rel_room)), 'abs_rel_objects': float(np.nanmean(abs_rel_objects)),
             'abs_rel_median_scaled': float(np.mean(abs_rel_scaled)), 'windows': len(indices)}
+
+
+def model_inputs(model, batch, mode):
+    """The inputs `model` (a checkpoint's GroupForwardMini or an OnnxModel) takes from `batch`."""
+    if isinstance(model, GroupForwardMini):
+        return model.inputs(batch)
+    return (batch['images'], batch['points'] if mode == 'rgbd' else None)
 
 
 class OnnxModel:

@@ -92,12 +92,23 @@ def main():
     parser.add_argument('--gate-per-pixel', action='store_true',
                         help='with --room-gate: its cross-entropy weighs every pixel alike instead of the room '
                              'and the objects equally (gf.losses.room_gate_loss)')
+    parser.add_argument('--posed', action='store_true',
+                        help='RGB mode with TF poses: a plane-sweep matching cost over the window\'s views '
+                             '(gf.model.plane_sweep_cost) feeds the decoder, so depth can be triangulated')
+    parser.add_argument('--sweep-depth', type=float, default=0.0,
+                        help='with --posed: the plane sweep\'s own depth (soft-argmin over the planes) and '
+                             'confidence also go to the decoder, and its depth loss, weighted by this, trains the '
+                             'matching features directly; 0 = off')
     parser.add_argument('--snapshot-every', type=int, default=0,
                         help='also keep the weights every N steps (snapshot_<step>.pt), for equal-step comparisons')
     parser.add_argument('--out', required=True)
     args = parser.parse_args()
     if args.room_vote and args.vote_weight <= 0:
         parser.error('--room-vote needs --vote-weight > 0 (without it the vote loss is off)')
+    if args.sweep_depth > 0 and not args.posed:
+        parser.error('--sweep-depth needs --posed')
+    if args.posed and args.mode != 'rgb':
+        parser.error('--posed is RGB mode\'s (RGB-D mode takes world points)')
     if (args.sharp_gate or args.gate_per_pixel) and args.room_gate <= 0:
         parser.error('--sharp-gate and --gate-per-pixel need --room-gate > 0')
 
@@ -111,7 +122,7 @@ def main():
     selection = range(max(0, len(val) - args.val_windows), len(val))
     model = GroupForwardMini(mode=args.mode, refine=args.refine,
                              centre_votes=False if args.no_votes else None, room_gate=args.room_gate > 0,
-                             sharp_gate=args.sharp_gate)
+                             sharp_gate=args.sharp_gate, posed=args.posed, sweep_depth=args.sweep_depth > 0)
     print(f'GroupForward-mini ({args.mode}): {parameter_count(model) / 1e6:.2f} M parameters; '
           f'{len(train)} train windows, {len(val)} val windows')
     loader = torch.utils.data.DataLoader(train, batch_size=args.batch, shuffle=True, drop_last=True,
@@ -141,9 +152,12 @@ def main():
                 break
             stage = stage_of(progress, args.stages)
             model.train()
-            depth, gaussians, embeddings, votes, room_logits = model.forward_training(
-                batch['images'], batch['points'] if args.mode == 'rgbd' else None)
+            depth, gaussians, embeddings, votes, room_logits, sweep_depth = model.forward_training(
+                *model.inputs(batch))
             l_depth = depth_loss(depth, batch['depth'])
+            if sweep_depth is not None:
+                # Trains the matching features directly (nearest-neighbour half-resolution truth).
+                l_depth = l_depth + args.sweep_depth * depth_loss(sweep_depth, batch['depth'][:, :, ::2, ::2])
             pull, push = direct_losses(embeddings, batch['instance'], generator=generator, hard_push=args.hard_push)
             l_assignment = torch.zeros(())
             if args.direct_assignment:

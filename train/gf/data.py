@@ -6,7 +6,8 @@ view_NN_{rgb,depth,instance,class}.png. Depth PNGs are millimetres (0 = invalid)
 
 RGB-D inputs are built exactly as the node builds them (node/src/model/reconstruction.rs): world XYZ
 back-projected from depth with each view's pose, centred on the window's mean camera centre and divided
-by `points_scale`; invalid depth becomes the centre (0).
+by `points_scale`; invalid depth becomes the centre (0). The posed RGB model takes the views'
+intrinsics and their poses in that same frame (`world_cameras`) instead of points.
 """
 
 import json
@@ -66,7 +67,17 @@ class SimDataset(torch.utils.data.Dataset):
             'world_from_camera': torch.from_numpy(np.stack(poses)),
         }
         item['points'] = torch.from_numpy(world_points(depth, np.stack(intrinsics), np.stack(poses)))
+        item['intrinsics'] = item['k'].float()
+        item['cameras'] = torch.from_numpy(world_cameras(np.stack(poses)))
         return item
+
+
+def world_cameras(poses, scale=POINTS_SCALE):
+    """[V,4,4] world-from-camera poses in the frame of `world_points` (translation centred on the mean
+    camera centre and divided by `scale`), the posed RGB model's camera input."""
+    out = poses.astype(np.float64).copy()
+    out[:, :3, 3] = (out[:, :3, 3] - out[:, :3, 3].mean(axis=0)) / scale
+    return out.astype(np.float32)
 
 
 def world_points(depth, intrinsics, poses, scale=POINTS_SCALE):

@@ -27,8 +27,13 @@ U-Net decoder, and three heads (DESIGN §4 contract):
 
 RGB-D mode (the node's default) takes `points` (world XYZ from sensor depth, centred and scaled as
 gf.data.world_points does) next to `images`; RGB mode (the paper's setting) takes images only and the
-depth head predicts geometry. Only plain ops (conv, group norm, matmul attention, interpolation, sin / cos)
-so the legacy ONNX exporter handles a dynamic number of views.
+depth head predicts geometry. Posed RGB mode (`posed`, an experiment) also takes the views'
+intrinsics and TF poses (gf.data.world_cameras): a plane-sweep matching cost over the window's views
+(`plane_sweep_cost`, as MVSplat's cost volume) joins the decoder at half resolution, so depth can be
+triangulated instead of guessed from one view's appearance; with `sweep_depth` the sweep's own
+depth (soft-argmin over the planes) and confidence join it too, and an auxiliary depth loss on that
+depth trains the matching features directly. Only plain ops (conv, group norm, matmul attention,
+interpolation, sin / cos, grid sampling) so the legacy ONNX exporter handles a dynamic number of views.
 """
 
 import math
@@ -42,6 +47,60 @@ from torch.nn import functional as F
 # scaled to about unit range, so objects 0.3 m apart differ by ~0.1 and the top frequency resolves that).
 VOTE_FEATURES = 13
 VOTE_FREQUENCIES = 4
+
+# Posed RGB mode's plane sweep: depth planes evenly spaced in inverse depth over the sim's rooms (metres),
+# matched with unit features of this many channels at half resolution, where neighbouring views of a
+# window (~0.2 m apart, focal 64 px) differ by 1–6 px at room depths.
+SWEEP_PLANES = 24
+SWEEP_NEAR = 0.4
+SWEEP_FAR = 10.0
+SWEEP_FEATURES = 16
+POINTS_SCALE = 3.0  # gf.data.POINTS_SCALE: the camera input's world units
+
+
+def plane_sweep_cost(features, intrinsics, world_from_camera, full_height, full_width):
+    """Matching cost [B,V,D,h,w] of a window's views: for every pixel of every view and each depth plane,
+    the mean over the other views of the dot product between its unit feature and the feature (bilinear)
+    where that 3D point projects; views where it falls behind the camera or outside the image do not
+    count (0 where no view sees it). features [B,V,C,h,w] at a stride of the full_height × full_width
+    images; intrinsics [B,V,3,3] in full-resolution pixels; world_from_camera [B,V,4,4] in the points'
+    frame (translation in units of POINTS_SCALE metres). Matrix products and grid sampling only, for
+    ONNX and a dynamic number of views."""
+    b, v, c, h, w = features.shape
+    stride_y, stride_x = full_height / h, full_width / w
+    inverse_depths = torch.linspace(1.0 / SWEEP_NEAR, 1.0 / SWEEP_FAR, SWEEP_PLANES)
+    distances = (1.0 / inverse_depths) / POINTS_SCALE  # [D], z in world units
+    ys = (torch.arange(h, dtype=torch.float32) + 0.5) * stride_y - 0.5
+    xs = (torch.arange(w, dtype=torch.float32) + 0.5) * stride_x - 0.5
+    fx, fy = intrinsics[:, :, 0, 0, None, None], intrinsics[:, :, 1, 1, None, None]
+    cx, cy = intrinsics[:, :, 0, 2, None, None], intrinsics[:, :, 1, 2, None, None]
+    ray_x = (xs[None, None, None, :] - cx) / fx  # [B,V,1,w]
+    ray_y = (ys[None, None, :, None] - cy) / fy  # [B,V,h,1]
+    rays = torch.stack([ray_x.expand(-1, -1, h, -1), ray_y.expand(-1, -1, -1, w),
+                        torch.ones_like(ray_x).expand(-1, -1, h, w)], dim=2).reshape(b, v, 3, h * w)
+    rotation, translation = world_from_camera[:, :, :3, :3], world_from_camera[:, :, :3, 3]
+    world_rays = rotation @ rays  # [B,Vi,3,hw]
+    points = translation[:, :, None, :, None] + distances[None, None, :, None, None] * world_rays[:, :, None]
+    # Into every view j: camera_j = R_jᵀ (X − t_j), for all source views i and planes at once.
+    relative = points[:, None] - translation[:, :, None, None, :, None]  # [B,Vj,Vi,D,3,hw]
+    camera = rotation.transpose(-1, -2)[:, :, None, None] @ relative
+    z = camera[:, :, :, :, 2]
+    safe_z = z.clamp_min(1e-3)
+    fxj, fyj = intrinsics[:, :, 0, 0, None, None, None], intrinsics[:, :, 1, 1, None, None, None]
+    cxj, cyj = intrinsics[:, :, 0, 2, None, None, None], intrinsics[:, :, 1, 2, None, None, None]
+    u = fxj * camera[:, :, :, :, 0] / safe_z + cxj
+    v_ = fyj * camera[:, :, :, :, 1] / safe_z + cyj
+    grid_x = (u + 0.5) / full_width * 2.0 - 1.0
+    grid_y = (v_ + 0.5) / full_height * 2.0 - 1.0
+    seen = (z > 1e-2) & (grid_x.abs() <= 1.0) & (grid_y.abs() <= 1.0)
+    others = 1.0 - torch.eye(v, dtype=features.dtype)  # a view does not match itself
+    weight = seen.to(features.dtype) * others[None, :, :, None, None]  # [B,Vj,Vi,D,hw]
+    grid = torch.stack([grid_x, grid_y], dim=-1).reshape(b * v, v * SWEEP_PLANES * h, w, 2)
+    sampled = F.grid_sample(features.reshape(b * v, c, h, w), grid, mode='bilinear', padding_mode='zeros',
+                            align_corners=False).reshape(b, v, c, v, SWEEP_PLANES, h * w)
+    similarity = (sampled * features.transpose(1, 2).reshape(b, 1, c, v, 1, h * w)).sum(2)  # [B,Vj,Vi,D,hw]
+    cost = (similarity * weight).sum(1) / weight.sum(1).clamp_min(1.0)
+    return cost.reshape(b, v, SWEEP_PLANES, h, w)
 
 
 def block(cin, cout, stride=1):
@@ -90,14 +149,18 @@ def positional_encoding(height, width, dim):
 
 class GroupForwardMini(nn.Module):
     def __init__(self, mode='rgbd', height=96, width=128, embedding_dim=8, width_mult=1.0, refine=False,
-                 centre_votes=None, room_gate=False, sharp_gate=False):
+                 centre_votes=None, room_gate=False, sharp_gate=False, posed=False, sweep_depth=False):
         super().__init__()
+        assert not posed or mode == 'rgb', 'the posed plane sweep is for RGB mode (RGB-D has points)'
         assert mode in ('rgbd', 'rgb')
         assert room_gate or not sharp_gate, 'the sharp gate refines the room gate'
         self.mode = mode
         self.refine = refine
         self.room_gate = room_gate
         self.sharp_gate = sharp_gate
+        self.posed = posed
+        assert posed or not sweep_depth, 'the sweep depth comes from the posed plane sweep'
+        self.sweep_depth = sweep_depth
         self.centre_votes = (mode == 'rgbd') if centre_votes is None else centre_votes
         assert not (self.centre_votes and mode != 'rgbd'), 'centre votes need world points (RGB-D mode)'
         self.embedding_dim = embedding_dim
@@ -111,7 +174,13 @@ class GroupForwardMini(nn.Module):
         self.attention = nn.ModuleList([CrossViewAttention(c[3]) for _ in range(2)])
         self.dec3 = block(c[3] + c[2], c[2])
         self.dec2 = block(c[2] + c[1], c[1])
-        self.dec1 = block(c[1] + c[0], c[0])
+        self.dec1 = block(c[1] + c[0] + (SWEEP_PLANES if posed else 0) + (2 if sweep_depth else 0), c[0])
+        if posed:
+            # Matching features for the plane sweep, from the first encoder level (half resolution).
+            self.sweep_features = nn.Conv2d(c[0], SWEEP_FEATURES, 1)
+        if sweep_depth:
+            # Softmax sharpness of the matching cost over the planes (costs are cosines in [-1, 1]).
+            self.sweep_temperature = nn.Parameter(torch.tensor(10.0))
         # Full resolution is the expensive level: one convolution there.
         self.dec0 = nn.Sequential(nn.Conv2d(c[0] + cin, c[0], 3, padding=1), nn.GroupNorm(8, c[0]), nn.GELU())
         self.depth_head = nn.Conv2d(c[0], 1, 3, padding=1)
@@ -161,7 +230,8 @@ class GroupForwardMini(nn.Module):
         model = cls(mode=mode, refine=any(k.startswith('instance_refine') for k in state),
                     centre_votes=any(k.startswith('instance_vote_mlp') for k in state),
                     room_gate='instance_room_vector' in state,
-                    sharp_gate=any(k.startswith('instance_room_refine') for k in state))
+                    sharp_gate=any(k.startswith('instance_room_refine') for k in state),
+                    posed='sweep_features.weight' in state, sweep_depth='sweep_temperature' in state)
         model.load_state_dict(state)
         return model
 
@@ -172,18 +242,28 @@ class GroupForwardMini(nn.Module):
         assert self.room_gate, 'no room gate to calibrate'
         self.get_parameter(room_logit_bias_name(self.sharp_gate))[-1] += bias
 
-    def forward(self, images, points=None):
-        """(depth, gaussians, embeddings): the exported contract."""
-        return self.forward_with_votes(images, points)[:3]
+    def inputs(self, batch):
+        """The positional inputs this model takes from a batch of gf.data.SimDataset items: images, and
+        points (RGB-D) or intrinsics and cameras (posed RGB)."""
+        if self.mode == 'rgbd':
+            return batch['images'], batch['points']
+        if self.posed:
+            return batch['images'], None, batch['intrinsics'], batch['cameras']
+        return (batch['images'],)
 
-    def forward_with_votes(self, images, points=None):
+    def forward(self, images, points=None, intrinsics=None, world_from_camera=None):
+        """(depth, gaussians, embeddings): the exported contract."""
+        return self.forward_with_votes(images, points, intrinsics, world_from_camera)[:3]
+
+    def forward_with_votes(self, images, points=None, intrinsics=None, world_from_camera=None):
         """(depth, gaussians, embeddings, votes): also the half-resolution centre votes [B,V,3,H/2,W/2]
         (None without `centre_votes`), for the training-only vote loss."""
-        return self.forward_training(images, points)[:4]
+        return self.forward_training(images, points, intrinsics, world_from_camera)[:4]
 
-    def forward_training(self, images, points=None):
-        """(depth, gaussians, embeddings, votes, room logits): also the full-resolution room logits
-        [B,V,H,W] (None without `room_gate`), for the training-only room loss."""
+    def forward_training(self, images, points=None, intrinsics=None, world_from_camera=None):
+        """(depth, gaussians, embeddings, votes, room logits, sweep depth): also the full-resolution
+        room logits [B,V,H,W] (None without `room_gate`), for the training-only room loss, and the
+        plane sweep's own depth [B,V,H/2,W/2] (None without `sweep_depth`) for its auxiliary loss."""
         b, v = images.shape[0], images.shape[1]
         x = images.flatten(0, 1)
         if self.mode == 'rgbd':
@@ -201,7 +281,25 @@ class GroupForwardMini(nn.Module):
         up = lambda t: F.interpolate(t, scale_factor=2.0, mode='nearest')  # noqa: E731
         d3 = self.dec3(torch.cat([up(e4), e3], dim=1))
         d2 = self.dec2(torch.cat([up(d3), e2], dim=1))
-        d1 = self.dec1(torch.cat([up(d2), e1], dim=1))
+        skip = [up(d2), e1]
+        if self.posed:
+            # Triangulation the attention at 1/16 resolution cannot do: where each pixel's features
+            # match the other views' along its ray, from the TF poses.
+            matching = F.normalize(self.sweep_features(e1), dim=1)
+            cost = plane_sweep_cost(matching.reshape(b, v, *matching.shape[1:]), intrinsics, world_from_camera,
+                                    images.shape[-2], images.shape[-1]).flatten(0, 1)
+            skip.append(cost)
+            if self.sweep_depth:
+                # The sweep's own depth (expected inverse depth over the planes) and its confidence, handed
+                # to the decoder ready to copy: the raw costs alone were barely used (README, Training).
+                probability = torch.softmax(cost * self.sweep_temperature, dim=1)
+                inverse = torch.linspace(1.0 / SWEEP_NEAR, 1.0 / SWEEP_FAR, SWEEP_PLANES).reshape(1, -1, 1, 1)
+                sweep_log_depth = -torch.log((probability * inverse).sum(1, keepdim=True))
+                skip += [sweep_log_depth, probability.max(1, keepdim=True)[0]]
+        d1 = self.dec1(torch.cat(skip, dim=1))
+        sweep_depth = None
+        if self.sweep_depth:
+            sweep_depth = torch.exp(sweep_log_depth[:, 0]).reshape(b, v, *sweep_log_depth.shape[2:])
         d0 = self.dec0(torch.cat([up(d1), x], dim=1))
         log_depth = self.depth_head(d0)
         depth = torch.exp(log_depth.clamp(-5.0, 5.0))
@@ -239,7 +337,7 @@ class GroupForwardMini(nn.Module):
             embeddings = gate * room.reshape(1, -1, 1, 1) + (1 - gate) * unit
         shape = lambda t: t.reshape(b, v, *t.shape[1:])  # noqa: E731
         return (shape(depth[:, 0]), shape(gaussians), shape(embeddings), None if vote is None else shape(vote),
-                None if room_logit is None else shape(room_logit[:, 0]))
+                None if room_logit is None else shape(room_logit[:, 0]), sweep_depth)
 
 
 def room_logit_bias_name(sharp_gate):
