@@ -27,6 +27,9 @@ nearest *true* instance centroid of the embeddings (the best any clustering of t
 centroids), and `oracle_edge` / `oracle_inner` are that assignment's accuracy on pixels within 2 px
 of an instance boundary and on the rest.
 
+A posed RGB model (train_recon.py --posed) takes the views' intrinsics and TF poses as well;
+`--swap-poses` scores it with each view given the next view's pose, to show whether it uses them.
+
 Depth: abs-rel and δ<1.25 over valid pixels; abs-rel also on the room's and on the objects' pixels
 alone, and after scaling each window's prediction by its median ratio to the truth (what is left
 when the global scale is right). Training picks its checkpoint on the last 24 val windows
@@ -165,7 +168,9 @@ def objects_found(truth, labels, min_pixels=MIN_OBJECT_PIXELS):
 
 
 @torch.no_grad()
-def evaluate(model, dataset, mode, indices=None, grouping=GROUPING):
+def evaluate(model, dataset, mode, indices=None, grouping=GROUPING, swap_poses=False):
+    """The metrics above over the windows `indices`; `swap_poses` gives every view the next view's pose
+    (a posed model that uses its poses should get worse)."""
     model.eval()
     aris, raw_aris, abs_rel, delta, pair_aris, clusters, instances = [], [], [], [], [], [], []
     oracle_aris, edge, inner, found = [], np.zeros(2, int), np.zeros(2, int), np.zeros(4, int)
@@ -177,6 +182,8 @@ def evaluate(model, dataset, mode, indices=None, grouping=GROUPING):
     for i in indices:
         item = dataset[i]
         batch = {key: value[None] for key, value in item.items()}
+        if swap_poses:
+            batch['cameras'] = batch['cameras'].roll(1, dims=1)
         depth, _, embeddings = model(*model_inputs(model, batch, mode))
         e = embeddings[0].permute(0, 2, 3, 1).reshape(-1, embeddings.shape[2])
         e = torch.nn.functional.normalize(e, dim=1).numpy()
@@ -292,6 +299,8 @@ def main():
                              'export_recon.py --room-bias bakes in)')
     parser.add_argument('--grouping', default=','.join(map(str, GROUPING)),
                         help='min_cluster_size,min_samples,noise_distance,merge_distance')
+    parser.add_argument('--swap-poses', action='store_true',
+                        help='a posed RGB model: give every view the next view\'s pose (does it use them?)')
     args = parser.parse_args()
     grouping = tuple(float(v) for v in args.grouping.split(','))
     assert len(grouping) == 4, '--grouping takes four numbers'
@@ -299,7 +308,7 @@ def main():
     model = load_model(args.model, args.mode, args.threads, args.room_bias)
     dataset = SimDataset(args.val, args.mode)
     end = len(dataset) if args.windows is None else min(len(dataset), args.first + args.windows)
-    print(json.dumps(evaluate(model, dataset, args.mode, range(args.first, end), grouping)))
+    print(json.dumps(evaluate(model, dataset, args.mode, range(args.first, end), grouping, args.swap_poses)))
 
 
 if __name__ == '__main__':
