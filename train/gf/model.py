@@ -42,6 +42,8 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
+from .data import POINTS_SCALE  # the camera input's world units
+
 
 # Centre votes: free features next to the 3D vote, and Fourier frequencies 2^i·π of the vote (points are
 # scaled to about unit range, so objects 0.3 m apart differ by ~0.1 and the top frequency resolves that).
@@ -55,7 +57,11 @@ SWEEP_PLANES = 24
 SWEEP_NEAR = 0.4
 SWEEP_FAR = 10.0
 SWEEP_FEATURES = 16
-POINTS_SCALE = 3.0  # gf.data.POINTS_SCALE: the camera input's world units
+
+
+def sweep_inverse_depths():
+    """The plane sweep's planes [D] as inverse depths (1/m), nearest first."""
+    return torch.linspace(1.0 / SWEEP_NEAR, 1.0 / SWEEP_FAR, SWEEP_PLANES)
 
 
 def plane_sweep_cost(features, intrinsics, world_from_camera, full_height, full_width):
@@ -68,8 +74,7 @@ def plane_sweep_cost(features, intrinsics, world_from_camera, full_height, full_
     ONNX and a dynamic number of views."""
     b, v, c, h, w = features.shape
     stride_y, stride_x = full_height / h, full_width / w
-    inverse_depths = torch.linspace(1.0 / SWEEP_NEAR, 1.0 / SWEEP_FAR, SWEEP_PLANES)
-    distances = (1.0 / inverse_depths) / POINTS_SCALE  # [D], z in world units
+    distances = (1.0 / sweep_inverse_depths()) / POINTS_SCALE  # [D], z in world units
     ys = (torch.arange(h, dtype=torch.float32) + 0.5) * stride_y - 0.5
     xs = (torch.arange(w, dtype=torch.float32) + 0.5) * stride_x - 0.5
     fx, fy = intrinsics[:, :, 0, 0, None, None], intrinsics[:, :, 1, 1, None, None]
@@ -293,7 +298,7 @@ class GroupForwardMini(nn.Module):
                 # The sweep's own depth (expected inverse depth over the planes) and its confidence, handed
                 # to the decoder ready to copy: the raw costs alone were barely used (README, Training).
                 probability = torch.softmax(cost * self.sweep_temperature, dim=1)
-                inverse = torch.linspace(1.0 / SWEEP_NEAR, 1.0 / SWEEP_FAR, SWEEP_PLANES).reshape(1, -1, 1, 1)
+                inverse = sweep_inverse_depths().reshape(1, -1, 1, 1)
                 sweep_log_depth = -torch.log((probability * inverse).sum(1, keepdim=True))
                 skip += [sweep_log_depth, probability.max(1, keepdim=True)[0]]
         d1 = self.dec1(torch.cat(skip, dim=1))

@@ -9,6 +9,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from gf import model as gf_model  # noqa: E402
+from gf.data import POINTS_SCALE  # noqa: E402
 
 HEIGHT, WIDTH = 96, 128
 K = torch.tensor([[64.0, 0.0, 63.5], [0.0, 64.0, 47.5], [0.0, 0.0, 1.0]])
@@ -18,7 +19,7 @@ def poses(translations_m):
     """World-from-camera poses [1,V,4,4] of cameras looking along world +z, translations in metres
     (converted to the points' frame)."""
     out = torch.eye(4).repeat(len(translations_m), 1, 1)
-    out[:, :3, 3] = torch.tensor(translations_m) / gf_model.POINTS_SCALE
+    out[:, :3, 3] = torch.tensor(translations_m) / POINTS_SCALE
     return out[None]
 
 
@@ -33,7 +34,7 @@ def plane_texture(cameras, plane_depth_m):
     ray_y = ((ys - K[1, 2]) / K[1, 1])[:, None].expand(h, w)
     features = []
     for i in range(v):
-        t = cameras[0, i, :3, 3] * gf_model.POINTS_SCALE
+        t = cameras[0, i, :3, 3] * POINTS_SCALE
         x, y = t[0] + plane_depth_m * ray_x, t[1] + plane_depth_m * ray_y
         channels = [f(s * c) for s in (3.0, 7.0, 13.0) for c in (x, y) for f in (torch.sin, torch.cos)]
         features.append(torch.nn.functional.normalize(torch.stack(channels), dim=0))
@@ -46,8 +47,7 @@ def sweep(features, cameras):
 
 
 def plane_depths():
-    inverse = torch.linspace(1 / gf_model.SWEEP_NEAR, 1 / gf_model.SWEEP_FAR, gf_model.SWEEP_PLANES)
-    return 1 / inverse
+    return 1 / gf_model.sweep_inverse_depths()
 
 
 def test_plane_sweep_finds_a_textured_plane():
