@@ -168,7 +168,7 @@ def objects_found(truth, labels, min_pixels=MIN_OBJECT_PIXELS):
 
 
 @torch.no_grad()
-def evaluate(model, dataset, mode, indices=None, grouping=GROUPING, swap_poses=False):
+def evaluate(model, dataset, indices=None, grouping=GROUPING, swap_poses=False):
     """The metrics above over the windows `indices`; `swap_poses` gives every view the next view's pose
     (a posed model that uses its poses should get worse)."""
     model.eval()
@@ -184,7 +184,7 @@ def evaluate(model, dataset, mode, indices=None, grouping=GROUPING, swap_poses=F
         batch = {key: value[None] for key, value in item.items()}
         if swap_poses:
             batch['cameras'] = batch['cameras'].roll(1, dims=1)
-        depth, _, embeddings = model(*model_inputs(model, batch, mode))
+        depth, _, embeddings = model(*model.inputs(batch))
         e = embeddings[0].permute(0, 2, 3, 1).reshape(-1, embeddings.shape[2])
         e = torch.nn.functional.normalize(e, dim=1).numpy()
         truth = item['instance'].reshape(-1).numpy()
@@ -244,13 +244,6 @@ def evaluate(model, dataset, mode, indices=None, grouping=GROUPING, swap_poses=F
             'abs_rel_median_scaled': float(np.mean(abs_rel_scaled)), 'windows': len(indices)}
 
 
-def model_inputs(model, batch, mode):
-    """The inputs `model` (a checkpoint's GroupForwardMini or an OnnxModel) takes from `batch`."""
-    if isinstance(model, GroupForwardMini):
-        return model.inputs(batch)
-    return (batch['images'], batch['points'] if mode == 'rgbd' else None)
-
-
 class OnnxModel:
     """An exported model (models/<name>.onnx) behind the PyTorch model's call, so shipped models are
     scored by the same code as checkpoints."""
@@ -266,6 +259,11 @@ class OnnxModel:
 
     def eval(self):
         return self
+
+    def inputs(self, batch):
+        """GroupForwardMini.inputs for an exported RGB or RGB-D model: images, and points if it takes them."""
+        taken = {i.name for i in self.session.get_inputs()}
+        return (batch['images'], batch['points']) if 'points' in taken else (batch['images'],)
 
     def __call__(self, images, points=None):
         feed = {'images': images.numpy()}
@@ -308,7 +306,7 @@ def main():
     model = load_model(args.model, args.mode, args.threads, args.room_bias)
     dataset = SimDataset(args.val, args.mode)
     end = len(dataset) if args.windows is None else min(len(dataset), args.first + args.windows)
-    print(json.dumps(evaluate(model, dataset, args.mode, range(args.first, end), grouping, args.swap_poses)))
+    print(json.dumps(evaluate(model, dataset, range(args.first, end), grouping, args.swap_poses)))
 
 
 if __name__ == '__main__':

@@ -210,12 +210,12 @@ def main():
             now = time.perf_counter()
             if stage >= 2 and now - last_eval >= args.eval_every * 60.0:
                 last_eval = now
-                metrics = evaluate(model, val, args.mode, selection)
+                metrics = evaluate(model, val, selection)
                 print(f'  val: {metrics}', flush=True)
                 if metrics['ari'] > best['ari']:
                     best = dict(metrics, step=step, minutes=elapsed / 60)
                     torch.save(model.state_dict(), out / 'model.pt')
-    metrics = evaluate(model, val, args.mode, selection)
+    metrics = evaluate(model, val, selection)
     print(f'final val: {metrics}', flush=True)
     if metrics['ari'] > best['ari']:
         best = dict(metrics, step=step, minutes=(time.perf_counter() - started) / 60)

@@ -7,7 +7,7 @@ view_NN_{rgb,depth,instance,class}.png. Depth PNGs are millimetres (0 = invalid)
 RGB-D inputs are built exactly as the node builds them (node/src/model/reconstruction.rs): world XYZ
 back-projected from depth with each view's pose, centred on the window's mean camera centre and divided
 by `points_scale`; invalid depth becomes the centre (0). The posed RGB model takes the views'
-intrinsics and their poses in that same frame (`world_cameras`) instead of points.
+intrinsics (`k`) and their poses in that same frame (`world_cameras`) instead of points.
 """
 
 import json
@@ -67,7 +67,6 @@ class SimDataset(torch.utils.data.Dataset):
             'world_from_camera': torch.from_numpy(np.stack(poses)),
         }
         item['points'] = torch.from_numpy(world_points(depth, np.stack(intrinsics), np.stack(poses)))
-        item['intrinsics'] = item['k'].float()
         item['cameras'] = torch.from_numpy(world_cameras(np.stack(poses)))
         return item
 

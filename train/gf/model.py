@@ -91,10 +91,9 @@ def plane_sweep_cost(features, intrinsics, world_from_camera, full_height, full_
     camera = rotation.transpose(-1, -2)[:, :, None, None] @ relative
     z = camera[:, :, :, :, 2]
     safe_z = z.clamp_min(1e-3)
-    fxj, fyj = intrinsics[:, :, 0, 0, None, None, None], intrinsics[:, :, 1, 1, None, None, None]
-    cxj, cyj = intrinsics[:, :, 0, 2, None, None, None], intrinsics[:, :, 1, 2, None, None, None]
-    u = fxj * camera[:, :, :, :, 0] / safe_z + cxj
-    v_ = fyj * camera[:, :, :, :, 1] / safe_z + cyj
+    # View j's intrinsics over [B,Vj,Vi,D,hw].
+    u = fx[..., None] * camera[:, :, :, :, 0] / safe_z + cx[..., None]
+    v_ = fy[..., None] * camera[:, :, :, :, 1] / safe_z + cy[..., None]
     grid_x = (u + 0.5) / full_width * 2.0 - 1.0
     grid_y = (v_ + 0.5) / full_height * 2.0 - 1.0
     seen = (z > 1e-2) & (grid_x.abs() <= 1.0) & (grid_y.abs() <= 1.0)
@@ -253,7 +252,7 @@ class GroupForwardMini(nn.Module):
         if self.mode == 'rgbd':
             return batch['images'], batch['points']
         if self.posed:
-            return batch['images'], None, batch['intrinsics'], batch['cameras']
+            return batch['images'], None, batch['k'].float(), batch['cameras']
         return (batch['images'],)
 
     def forward(self, images, points=None, intrinsics=None, world_from_camera=None):
@@ -287,6 +286,7 @@ class GroupForwardMini(nn.Module):
         d3 = self.dec3(torch.cat([up(e4), e3], dim=1))
         d2 = self.dec2(torch.cat([up(d3), e2], dim=1))
         skip = [up(d2), e1]
+        sweep_depth = None
         if self.posed:
             # Triangulation the attention at 1/16 resolution cannot do: where each pixel's features
             # match the other views' along its ray, from the TF poses.
@@ -301,10 +301,8 @@ class GroupForwardMini(nn.Module):
                 inverse = sweep_inverse_depths().reshape(1, -1, 1, 1)
                 sweep_log_depth = -torch.log((probability * inverse).sum(1, keepdim=True))
                 skip += [sweep_log_depth, probability.max(1, keepdim=True)[0]]
+                sweep_depth = torch.exp(sweep_log_depth[:, 0]).reshape(b, v, *sweep_log_depth.shape[2:])
         d1 = self.dec1(torch.cat(skip, dim=1))
-        sweep_depth = None
-        if self.sweep_depth:
-            sweep_depth = torch.exp(sweep_log_depth[:, 0]).reshape(b, v, *sweep_log_depth.shape[2:])
         d0 = self.dec0(torch.cat([up(d1), x], dim=1))
         log_depth = self.depth_head(d0)
         depth = torch.exp(log_depth.clamp(-5.0, 5.0))
