@@ -9,10 +9,12 @@ Usage (from the repository root, after `make train-setup` and writing datasets w
       --minutes 40 --out train/runs/rgbd
 
 Writes <out>/model.pt (best val ARI), <out>/log.csv (step, stage, losses, seconds) and
-<out>/summary.json. CPU is enough (threads: --threads, default 2).
+<out>/summary.json. CPU is enough (threads: --threads, default 2); `--device cuda` runs the same recipe
+(steps, batch, schedule) on a GPU, faster, with validation still on the CPU.
 """
 
 import argparse
+import copy
 import csv
 import math
 import json
@@ -40,6 +42,17 @@ def stage_of(fraction, split):
     return 3
 
 
+def cpu_state(model):
+    """Weights that load on any machine, whatever device trained them."""
+    return {name: tensor.cpu() for name, tensor in model.state_dict().items()}
+
+
+def evaluate_on_cpu(model, val, selection):
+    """Validation as the node groups (HDBSCAN and numpy run on the CPU), on a copy of the model."""
+    with torch.device('cpu'):
+        return evaluate(copy.deepcopy(model).cpu(), val, selection)
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument('--train', required=True)
@@ -56,6 +69,7 @@ def main():
     parser.add_argument('--schedule', choices=['cosine', 'constant'], default='cosine',
                         help='learning rate over the budget: cosine decay to 5%% of --lr, or constant')
     parser.add_argument('--threads', type=int, default=2)
+    parser.add_argument('--device', default='cpu', help='torch device that trains (cpu, cuda)')
     parser.add_argument('--eval-every', type=float, default=8.0, help='minutes between val evaluations')
     parser.add_argument('--val-windows', type=int, default=24,
                         help='the last N val windows pick the checkpoint; the rest stay held out for the report')
@@ -123,6 +137,8 @@ def main():
     model = GroupForwardMini(mode=args.mode, refine=args.refine,
                              centre_votes=False if args.no_votes else None, room_gate=args.room_gate > 0,
                              sharp_gate=args.sharp_gate, posed=args.posed, sweep_depth=args.sweep_depth > 0)
+    device = torch.device(args.device)
+    model.to(device)
     print(f'GroupForward-mini ({args.mode}): {parameter_count(model) / 1e6:.2f} M parameters; '
           f'{len(train)} train windows, {len(val)} val windows')
     loader = torch.utils.data.DataLoader(train, batch_size=args.batch, shuffle=True, drop_last=True,
@@ -141,88 +157,92 @@ def main():
     writer = csv.writer(log)
     writer.writerow(['step', 'stage', 'seconds', 'loss', 'depth', 'pull', 'push', 'render', 'photometric', 'vote',
                      'assignment', 'room'])
-    generator = torch.Generator().manual_seed(args.seed)
+    generator = torch.Generator(device=device).manual_seed(args.seed)
     done = False
     while not done:
         for batch in loader:
-            elapsed = time.perf_counter() - started
-            progress = step / args.steps if args.steps else elapsed / budget
-            if progress >= 1.0:
-                done = True
-                break
-            stage = stage_of(progress, args.stages)
-            model.train()
-            depth, gaussians, embeddings, votes, room_logits, sweep_depth = model.forward_training(
-                *model.inputs(batch))
-            l_depth = depth_loss(depth, batch['depth'])
-            if sweep_depth is not None:
-                # Trains the matching features directly (nearest-neighbour half-resolution truth).
-                l_depth = l_depth + args.sweep_depth * depth_loss(sweep_depth, batch['depth'][:, :, ::2, ::2])
-            pull, push = direct_losses(embeddings, batch['instance'], generator=generator, hard_push=args.hard_push)
-            l_assignment = torch.zeros(())
-            if args.direct_assignment:
-                dice, focal = assignment_losses(embeddings, batch['instance'], generator=generator)
-                l_assignment = args.direct_assignment * (LAMBDA_DICE * dice + LAMBDA_FOCAL * focal)
-            l_vote = torch.zeros(())
-            if args.vote_weight > 0 and votes is not None:
-                l_vote = vote_loss(votes, batch['points'], batch['depth'], batch['instance'],
-                                   ROOM_VOTE if args.room_vote else None)
-            l_room = (room_gate_loss(room_logits, batch['instance'], balanced=not args.gate_per_pixel)
-                      if room_logits is not None else torch.zeros(()))
-            l_direct = (LAMBDA_PULL * pull + LAMBDA_PUSH * push + args.vote_weight * l_vote + l_assignment
-                        + args.room_gate * l_room)
-            l_render = torch.zeros(())
-            l_photo = torch.zeros(())
-            if not args.no_rendered:
-                dice, focal, r_pull, r_push, l_photo = rendered_losses(
-                    depth, gaussians, embeddings, batch, count=args.render_gaussians, generator=generator)
-                l_render = (LAMBDA_DICE * dice + LAMBDA_FOCAL * focal + LAMBDA_PULL * r_pull
-                            + LAMBDA_PUSH * r_push)
-            if stage == 1:
-                loss = l_depth + l_photo
-            elif stage == 2:
-                loss = LAMBDA_DIRECT * l_direct + LAMBDA_RENDER * l_render
-            else:
-                loss = l_depth + l_photo + LAMBDA_DIRECT * l_direct + LAMBDA_RENDER * l_render
-            optimizer = optimizers[stage]
-            if args.schedule == 'cosine':
-                # One decay over the whole budget; stage 3 runs at half the rate (all weights move).
-                factor = 0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * progress))
-                for group in optimizer.param_groups:
-                    group['lr'] = args.lr * factor * (0.5 if stage == 3 else 1.0)
-            optimizer.zero_grad()
-            loss.backward()
-            torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
-            optimizer.step()
-            step += 1
-            if args.snapshot_every and step % args.snapshot_every == 0:
-                torch.save(model.state_dict(), out / f'snapshot_{step}.pt')
-            writer.writerow([step, stage, f'{elapsed:.1f}', f'{loss.item():.5f}', f'{l_depth.item():.5f}',
-                             f'{pull.item():.5f}', f'{push.item():.5f}', f'{l_render.item():.5f}',
-                             f'{l_photo.item():.5f}', f'{l_vote.item():.5f}', f'{l_assignment.item():.5f}',
-                             f'{l_room.item():.5f}'])
-            if step % 20 == 0:
-                log.flush()
-                print(f'step {step} stage {stage} {elapsed / 60:.1f} min: depth {l_depth.item():.4f} '
-                      f'pull {pull.item():.4f} push {push.item():.4f} render {l_render.item():.4f} '
-                      f'photometric {l_photo.item():.4f} vote {l_vote.item():.4f} '
-                      f'assignment {l_assignment.item():.4f} room {l_room.item():.4f}', flush=True)
-            now = time.perf_counter()
-            if stage >= 2 and now - last_eval >= args.eval_every * 60.0:
-                last_eval = now
-                metrics = evaluate(model, val, selection)
-                print(f'  val: {metrics}', flush=True)
-                if metrics['ari'] > best['ari']:
-                    best = dict(metrics, step=step, minutes=elapsed / 60)
-                    torch.save(model.state_dict(), out / 'model.pt')
-    metrics = evaluate(model, val, selection)
+            batch = {key: value.to(device) for key, value in batch.items()}
+            # Tensors the model and the losses make on the fly land beside the weights.
+            with device:
+                elapsed = time.perf_counter() - started
+                progress = step / args.steps if args.steps else elapsed / budget
+                if progress >= 1.0:
+                    done = True
+                    break
+                stage = stage_of(progress, args.stages)
+                model.train()
+                depth, gaussians, embeddings, votes, room_logits, sweep_depth = model.forward_training(
+                    *model.inputs(batch))
+                l_depth = depth_loss(depth, batch['depth'])
+                if sweep_depth is not None:
+                    # Trains the matching features directly (nearest-neighbour half-resolution truth).
+                    l_depth = l_depth + args.sweep_depth * depth_loss(sweep_depth, batch['depth'][:, :, ::2, ::2])
+                pull, push = direct_losses(embeddings, batch['instance'], generator=generator, hard_push=args.hard_push)
+                l_assignment = torch.zeros(())
+                if args.direct_assignment:
+                    dice, focal = assignment_losses(embeddings, batch['instance'], generator=generator)
+                    l_assignment = args.direct_assignment * (LAMBDA_DICE * dice + LAMBDA_FOCAL * focal)
+                l_vote = torch.zeros(())
+                if args.vote_weight > 0 and votes is not None:
+                    l_vote = vote_loss(votes, batch['points'], batch['depth'], batch['instance'],
+                                       ROOM_VOTE if args.room_vote else None)
+                l_room = (room_gate_loss(room_logits, batch['instance'], balanced=not args.gate_per_pixel)
+                          if room_logits is not None else torch.zeros(()))
+                l_direct = (LAMBDA_PULL * pull + LAMBDA_PUSH * push + args.vote_weight * l_vote + l_assignment
+                            + args.room_gate * l_room)
+                l_render = torch.zeros(())
+                l_photo = torch.zeros(())
+                if not args.no_rendered:
+                    dice, focal, r_pull, r_push, l_photo = rendered_losses(
+                        depth, gaussians, embeddings, batch, count=args.render_gaussians, generator=generator)
+                    l_render = (LAMBDA_DICE * dice + LAMBDA_FOCAL * focal + LAMBDA_PULL * r_pull
+                                + LAMBDA_PUSH * r_push)
+                if stage == 1:
+                    loss = l_depth + l_photo
+                elif stage == 2:
+                    loss = LAMBDA_DIRECT * l_direct + LAMBDA_RENDER * l_render
+                else:
+                    loss = l_depth + l_photo + LAMBDA_DIRECT * l_direct + LAMBDA_RENDER * l_render
+                optimizer = optimizers[stage]
+                if args.schedule == 'cosine':
+                    # One decay over the whole budget; stage 3 runs at half the rate (all weights move).
+                    factor = 0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * progress))
+                    for group in optimizer.param_groups:
+                        group['lr'] = args.lr * factor * (0.5 if stage == 3 else 1.0)
+                optimizer.zero_grad()
+                loss.backward()
+                torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
+                optimizer.step()
+                step += 1
+                if args.snapshot_every and step % args.snapshot_every == 0:
+                    torch.save(cpu_state(model), out / f'snapshot_{step}.pt')
+                writer.writerow([step, stage, f'{elapsed:.1f}', f'{loss.item():.5f}', f'{l_depth.item():.5f}',
+                                 f'{pull.item():.5f}', f'{push.item():.5f}', f'{l_render.item():.5f}',
+                                 f'{l_photo.item():.5f}', f'{l_vote.item():.5f}', f'{l_assignment.item():.5f}',
+                                 f'{l_room.item():.5f}'])
+                if step % 20 == 0:
+                    log.flush()
+                    print(f'step {step} stage {stage} {elapsed / 60:.1f} min: depth {l_depth.item():.4f} '
+                          f'pull {pull.item():.4f} push {push.item():.4f} render {l_render.item():.4f} '
+                          f'photometric {l_photo.item():.4f} vote {l_vote.item():.4f} '
+                          f'assignment {l_assignment.item():.4f} room {l_room.item():.4f}', flush=True)
+                now = time.perf_counter()
+                if stage >= 2 and now - last_eval >= args.eval_every * 60.0:
+                    last_eval = now
+                    metrics = evaluate_on_cpu(model, val, selection)
+                    print(f'  val: {metrics}', flush=True)
+                    if metrics['ari'] > best['ari']:
+                        best = dict(metrics, step=step, minutes=elapsed / 60)
+                        torch.save(cpu_state(model), out / 'model.pt')
+    metrics = evaluate_on_cpu(model, val, selection)
     print(f'final val: {metrics}', flush=True)
     if metrics['ari'] > best['ari']:
         best = dict(metrics, step=step, minutes=(time.perf_counter() - started) / 60)
-        torch.save(model.state_dict(), out / 'model.pt')
+        torch.save(cpu_state(model), out / 'model.pt')
     summary = {'mode': args.mode, 'rendered_losses': not args.no_rendered, 'steps': step,
                'minutes': (time.perf_counter() - started) / 60,
-               'threads': args.threads, 'train_windows': len(train), 'val_windows': args.val_windows,
+               'threads': args.threads, 'device': args.device, 'train_windows': len(train),
+               'val_windows': args.val_windows,
                'best': best, 'final': metrics, 'parameters': parameter_count(model),
                'args': vars(args)}
     (out / 'summary.json').write_text(json.dumps(summary, indent=2))
