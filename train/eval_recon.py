@@ -261,14 +261,18 @@ class OnnxModel:
         return self
 
     def inputs(self, batch):
-        """GroupForwardMini.inputs for an exported RGB or RGB-D model: images, and points if it takes them."""
+        """GroupForwardMini.inputs for an exported model, from the inputs its graph takes: images, and
+        points (RGB-D) or intrinsics and poses (posed RGB)."""
         taken = {i.name for i in self.session.get_inputs()}
-        return (batch['images'], batch['points']) if 'points' in taken else (batch['images'],)
+        if 'points' in taken:
+            return batch['images'], batch['points']
+        if 'world_from_camera' in taken:
+            return batch['images'], None, batch['k'].float(), batch['cameras']
+        return (batch['images'],)
 
-    def __call__(self, images, points=None):
-        feed = {'images': images.numpy()}
-        if points is not None:
-            feed['points'] = points.numpy()
+    def __call__(self, images, points=None, intrinsics=None, world_from_camera=None):
+        given = {'images': images, 'points': points, 'intrinsics': intrinsics, 'world_from_camera': world_from_camera}
+        feed = {name: tensor.numpy() for name, tensor in given.items() if tensor is not None}
         return tuple(torch.from_numpy(t) for t in self.session.run(['depth', 'gaussians', 'embeddings'], feed))
 
 

@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 
 use groupforward::ingest::{DepthImage, RgbImage};
 use groupforward::model::manifest::Manifest;
-use groupforward::model::reconstruction::{ModelInputs, ReconstructionModel, View};
+use groupforward::model::reconstruction::{Geometry, ModelInputs, ReconstructionModel, View};
 use groupforward::model::{init_runtime, ModelError, SessionOptions};
 use groupforward::recon::camera::Camera;
 use groupforward::recon::Rigid;
@@ -54,7 +54,7 @@ fn fixture_outputs_equal_python_onnxruntime() {
         height,
         width,
         images,
-        points: Some(points),
+        geometry: Geometry::Points(points),
     };
     let prediction = model.run_tensors(inputs).unwrap();
     for (name, got) in [
@@ -157,6 +157,18 @@ fn a_manifest_that_disagrees_with_the_graph_is_a_clear_error() {
         ReconstructionModel::load(&dir.path().join("missing.toml"), &SessionOptions::default()),
         Err(ModelError::ModelNotFound(_))
     ));
+    // A mode whose inputs the graph does not take: the runner could not feed it.
+    let posed = manifest.replace("mode = \"rgbd\"", "mode = \"rgb_posed\"");
+    std::fs::write(dir.path().join("posed.toml"), posed).unwrap();
+    let err = ReconstructionModel::load(&dir.path().join("posed.toml"), &SessionOptions::default())
+        .unwrap_err();
+    let text = err.to_string();
+    assert!(matches!(err, ModelError::ContractMismatch { .. }), "{text}");
+    assert!(
+        text.contains("takes an input `world_from_camera`; the graph has none"),
+        "{text}"
+    );
+    assert!(text.contains("input `points` is not one"), "{text}");
     std::fs::write(dir.path().join("bad.toml"), "name = 3").unwrap();
     assert!(matches!(
         Manifest::load(&dir.path().join("bad.toml")),

@@ -17,12 +17,25 @@ pub enum ModelKind {
     TextEncoder,
 }
 
-/// What a reconstruction model takes: RGB plus world points from sensor depth, or RGB only.
+/// What a reconstruction model takes: RGB plus world points from sensor depth, RGB only, or RGB
+/// with every view's intrinsics and TF pose (a plane sweep across the views inside the model).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum InputMode {
     Rgbd,
     Rgb,
+    RgbPosed,
+}
+
+impl InputMode {
+    /// The input tensors a model of this mode takes besides `images`.
+    pub fn geometry_inputs(self) -> &'static [&'static str] {
+        match self {
+            Self::Rgbd => &["points"],
+            Self::Rgb => &[],
+            Self::RgbPosed => &["intrinsics", "world_from_camera"],
+        }
+    }
 }
 
 /// One dimension: a fixed size, or a named dynamic one (`"V"`, `"H"`, `"W"`).
@@ -129,7 +142,7 @@ impl Manifest {
             }
             if manifest.mode.is_none() {
                 return Err(err(
-                    "a reconstruction model must say its `mode` (rgbd or rgb)".into(),
+                    "a reconstruction model must say its `mode` (rgbd, rgb or rgb_posed)".into(),
                 ));
             }
         }

@@ -3,13 +3,15 @@
 //!
 //! Contract: `images` f32 [1,V,3,H,W] in [0,1] (normalised as the manifest says); in RGB-D mode also
 //! `points` f32 [1,V,3,H,W], world XYZ from sensor depth, centred on the window's mean camera centre
-//! and divided by `points_scale`. Outputs `depth` [1,V,H,W] (metres), `gaussians` [1,V,11,H,W]
+//! and divided by `points_scale`; in posed RGB mode instead `intrinsics` f32 [1,V,3,3] (pixels at the
+//! model resolution) and `world_from_camera` f32 [1,V,4,4] (the TF poses in the frame of `points`:
+//! translation centred on the mean camera centre and divided by `points_scale`). Outputs `depth` [1,V,H,W] (metres), `gaussians` [1,V,11,H,W]
 //! = opacity (1), scale (3, pixels at unit depth), rotation (4, xyzw in the camera frame), colour
 //! residual (3, added to the input colour), `embeddings` [1,V,d_e,H,W]; optionally `pose_enc` [1,V,9].
 
 use std::path::Path;
 
-use glam::{DVec2, DVec3};
+use glam::{DMat3, DVec2, DVec3};
 
 use super::manifest::{InputMode, Manifest, ModelKind, Normalization};
 use super::{open_session, ModelError, Result, SessionOptions};
@@ -30,14 +32,29 @@ pub struct View<'a> {
     pub world_from_camera: Rigid,
 }
 
-/// Input tensors at the model resolution: `images` (and `points` in RGB-D mode), [1,V,3,H,W].
+/// Input tensors at the model resolution: `images` [1,V,3,H,W] and what the model's mode takes
+/// besides colour.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ModelInputs {
     pub views: usize,
     pub height: usize,
     pub width: usize,
     pub images: Vec<f32>,
-    pub points: Option<Vec<f32>>,
+    pub geometry: Geometry,
+}
+
+/// The inputs besides colour, by [`InputMode`].
+#[derive(Debug, Clone, PartialEq)]
+pub enum Geometry {
+    /// RGB only.
+    None,
+    /// RGB-D: `points` [1,V,3,H,W].
+    Points(Vec<f32>),
+    /// Posed RGB: `intrinsics` [1,V,3,3] and `world_from_camera` [1,V,4,4], row-major.
+    Cameras {
+        intrinsics: Vec<f32>,
+        world_from_camera: Vec<f32>,
+    },
 }
 
 /// The model's raw outputs for V views at the model resolution.
@@ -153,6 +170,73 @@ pub fn lifted_pixels(prediction: &Prediction) -> Vec<usize> {
         .collect()
 }
 
+/// RGB-D mode's `points`: every pixel's world point from sensor depth, centred and scaled.
+fn world_points(
+    views: &[View<'_>],
+    width: usize,
+    height: usize,
+    centre: DVec3,
+    scale: f64,
+) -> Result<Vec<f32>> {
+    let plane = width * height;
+    let mut points = Vec::with_capacity(views.len() * 3 * plane);
+    for view in views {
+        let depth = view.depth.ok_or_else(|| {
+            ModelError::Input("an RGB-D model needs a depth image for every view".into())
+        })?;
+        let camera = resized_camera(&view.camera, width, height);
+        let metres = resize_depth(depth, width, height);
+        let mut planar = vec![0.0f32; 3 * plane];
+        for y in 0..height {
+            for x in 0..width {
+                let d = metres[y * width + x];
+                // Invalid depth becomes the centre (0 after centring), a neutral input.
+                let world = if d.is_finite() && d > 0.0 {
+                    let p = camera.unproject(DVec2::new(x as f64, y as f64), f64::from(d));
+                    view.world_from_camera.transform_point(p)
+                } else {
+                    centre
+                };
+                let n = (world - centre) / scale;
+                for (c, value) in [n.x, n.y, n.z].into_iter().enumerate() {
+                    planar[c * plane + y * width + x] = value as f32;
+                }
+            }
+        }
+        points.extend(planar);
+    }
+    Ok(points)
+}
+
+/// Posed RGB mode's `intrinsics` (the pinhole at the model resolution; the model's plane sweep
+/// ignores lens distortion) and `world_from_camera` (rotation as is, translation centred and scaled
+/// like the points), row-major.
+fn posed_cameras(
+    views: &[View<'_>],
+    width: usize,
+    height: usize,
+    centre: DVec3,
+    scale: f64,
+) -> Geometry {
+    let mut intrinsics = Vec::with_capacity(views.len() * 9);
+    let mut world_from_camera = Vec::with_capacity(views.len() * 16);
+    for view in views {
+        let c = resized_camera(&view.camera, width, height);
+        intrinsics.extend([c.fx, 0.0, c.cx, 0.0, c.fy, c.cy, 0.0, 0.0, 1.0].map(|v| v as f32));
+        let rotation = DMat3::from_quat(view.world_from_camera.rotation);
+        let t = (view.world_from_camera.translation - centre) / scale;
+        for (row, translation) in [t.x, t.y, t.z].into_iter().enumerate() {
+            let r = rotation.row(row);
+            world_from_camera.extend([r.x, r.y, r.z, translation].map(|v| v as f32));
+        }
+        world_from_camera.extend([0.0, 0.0, 0.0, 1.0]);
+    }
+    Geometry::Cameras {
+        intrinsics,
+        world_from_camera,
+    }
+}
+
 impl ReconstructionModel {
     /// Load the model a manifest describes and check the graph against the manifest.
     pub fn load(manifest_path: &Path, options: &SessionOptions) -> Result<Self> {
@@ -165,6 +249,29 @@ impl ReconstructionModel {
         }
         let session = open_session(&manifest.model_path(), options)?;
         manifest.check(&session)?;
+        // The runner feeds exactly the inputs the mode names; a graph that takes others cannot run.
+        let mode = manifest.mode.unwrap_or(InputMode::Rgb);
+        let fed: Vec<&str> = std::iter::once("images")
+            .chain(mode.geometry_inputs().iter().copied())
+            .collect();
+        let mut problems: Vec<String> = fed
+            .iter()
+            .filter(|name| !manifest.inputs.iter().any(|t| t.name == **name))
+            .map(|name| format!("a {mode:?} model takes an input `{name}`; the graph has none"))
+            .collect();
+        problems.extend(
+            manifest
+                .inputs
+                .iter()
+                .filter(|t| !fed.contains(&t.name.as_str()))
+                .map(|t| format!("input `{}` is not one a {mode:?} model is fed", t.name)),
+        );
+        if !problems.is_empty() {
+            return Err(ModelError::ContractMismatch {
+                model: manifest.name.clone(),
+                problems,
+            });
+        }
         Ok(Self { session, manifest })
     }
 
@@ -184,7 +291,7 @@ impl ReconstructionModel {
         )
     }
 
-    /// Build the `images` (and `points`) tensors for `views`, at the model resolution.
+    /// Build the input tensors for `views` at the model resolution, as the model's mode asks.
     pub fn preprocess(&self, views: &[View<'_>]) -> Result<ModelInputs> {
         let Some(first) = views.first() else {
             return Err(ModelError::Input("no views".into()));
@@ -203,16 +310,7 @@ impl ReconstructionModel {
             }
             images.extend(model_image(view.rgb, width, height, norm.as_ref()));
         }
-        if self.mode() == InputMode::Rgb {
-            return Ok(ModelInputs {
-                views: views.len(),
-                height,
-                width,
-                images,
-                points: None,
-            });
-        }
-        // World points from sensor depth, centred on the mean camera centre so the window's gauge is
+        // World geometry is centred on the mean camera centre so the window's gauge is
         // translation-free, then scaled as the model was trained.
         let centre = views
             .iter()
@@ -220,41 +318,19 @@ impl ReconstructionModel {
             .sum::<DVec3>()
             / views.len() as f64;
         let scale = f64::from(norm.as_ref().map_or(1.0, |n| n.points_scale));
-        let mut points = Vec::with_capacity(views.len() * 3 * plane);
-        for view in views {
-            let depth = view.depth.ok_or_else(|| {
-                ModelError::Input("an RGB-D model needs a depth image for every view".into())
-            })?;
-            let camera = resized_camera(&view.camera, width, height);
-            let metres = resize_depth(depth, width, height);
-            let mut planar = vec![0.0f32; 3 * plane];
-            for y in 0..height {
-                for x in 0..width {
-                    let d = metres[y * width + x];
-                    // Invalid depth becomes the centre (0 after centring), a neutral input.
-                    let world = if d.is_finite() && d > 0.0 {
-                        let p = camera.unproject(DVec2::new(x as f64, y as f64), f64::from(d));
-                        view.world_from_camera.transform_point(p)
-                    } else {
-                        centre
-                    };
-                    let n = (world - centre) / scale;
-                    for (c, value) in [n.x, n.y, n.z].into_iter().enumerate() {
-                        planar[c * plane + y * width + x] = value as f32;
-                    }
-                }
-            }
-            points.extend(planar);
-        }
+        let geometry = match self.mode() {
+            InputMode::Rgb => Geometry::None,
+            InputMode::RgbPosed => posed_cameras(views, width, height, centre, scale),
+            InputMode::Rgbd => Geometry::Points(world_points(views, width, height, centre, scale)?),
+        };
         Ok(ModelInputs {
             views: views.len(),
             height,
             width,
             images,
-            points: Some(points),
+            geometry,
         })
     }
-
     /// Run the model on already-built input tensors.
     pub fn run_tensors(&mut self, inputs: ModelInputs) -> Result<Prediction> {
         let ModelInputs {
@@ -262,17 +338,31 @@ impl ReconstructionModel {
             height,
             width,
             images,
-            points,
+            geometry,
         } = inputs;
         let shape = [1usize, views, 3, height, width];
         let images = ort::value::Tensor::from_array((shape, images))?;
-        let outputs = match points {
-            Some(points) => {
+        let outputs = match geometry {
+            Geometry::None => self.session.run(ort::inputs!["images" => images])?,
+            Geometry::Points(points) => {
                 let points = ort::value::Tensor::from_array((shape, points))?;
                 self.session
                     .run(ort::inputs!["images" => images, "points" => points])?
             }
-            None => self.session.run(ort::inputs!["images" => images])?,
+            Geometry::Cameras {
+                intrinsics,
+                world_from_camera,
+            } => {
+                let intrinsics =
+                    ort::value::Tensor::from_array(([1usize, views, 3, 3], intrinsics))?;
+                let world_from_camera =
+                    ort::value::Tensor::from_array(([1usize, views, 4, 4], world_from_camera))?;
+                self.session.run(ort::inputs![
+                    "images" => images,
+                    "intrinsics" => intrinsics,
+                    "world_from_camera" => world_from_camera
+                ])?
+            }
         };
         let extract = |name: &str, channels: Option<usize>| -> Result<Vec<f32>> {
             let value = outputs
@@ -378,6 +468,72 @@ impl ReconstructionModel {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use glam::DQuat;
+
+    #[test]
+    fn posed_cameras_put_each_pixel_where_the_points_do() {
+        // Two views at 320×240 for a 128×96 model, turned and apart; what the posed model is given
+        // (intrinsics, pose) must place a pixel at depth d exactly where the RGB-D points put it.
+        let rgb = RgbImage {
+            width: 320,
+            height: 240,
+            data: vec![0; 320 * 240 * 3],
+        };
+        let depth = DepthImage {
+            width: 320,
+            height: 240,
+            metres: vec![2.5; 320 * 240],
+        };
+        let camera = Camera::pinhole(320, 240, 160.0, 150.0, 161.0, 118.0).unwrap();
+        let poses = [
+            Rigid::new(DQuat::from_rotation_y(0.3), DVec3::new(1.0, 0.2, -0.5)),
+            Rigid::new(
+                DQuat::from_euler(glam::EulerRot::XYZ, -0.2, 0.5, 0.1),
+                DVec3::new(1.4, 0.1, -0.3),
+            ),
+        ];
+        let views: Vec<View> = poses
+            .iter()
+            .map(|pose| View {
+                rgb: &rgb,
+                depth: Some(&depth),
+                camera,
+                world_from_camera: *pose,
+            })
+            .collect();
+        let (width, height, scale) = (128, 96, 3.0);
+        let centre = (poses[0].translation + poses[1].translation) / 2.0;
+        let points = world_points(&views, width, height, centre, scale).unwrap();
+        let Geometry::Cameras {
+            intrinsics,
+            world_from_camera,
+        } = posed_cameras(&views, width, height, centre, scale)
+        else {
+            panic!("posed cameras")
+        };
+        assert_eq!((intrinsics.len(), world_from_camera.len()), (18, 32));
+        let plane = width * height;
+        for v in 0..2 {
+            let k = &intrinsics[v * 9..(v + 1) * 9];
+            let m = &world_from_camera[v * 16..(v + 1) * 16];
+            assert_eq!(&m[12..], &[0.0, 0.0, 0.0, 1.0]);
+            for (x, y) in [(0usize, 0usize), (63, 47), (127, 95), (100, 10)] {
+                let d = 2.5f32;
+                let ray = [(x as f32 - k[2]) / k[0], (y as f32 - k[5]) / k[4], 1.0];
+                for row in 0..3 {
+                    let r = &m[row * 4..row * 4 + 4];
+                    // Rotation and translation are in world units of `scale` metres.
+                    let from_pose =
+                        (r[0] * ray[0] + r[1] * ray[1] + r[2] * ray[2]) * d / scale as f32 + r[3];
+                    let from_points = points[v * 3 * plane + row * plane + y * width + x];
+                    assert!(
+                        (from_pose - from_points).abs() < 1e-5,
+                        "view {v} pixel ({x},{y}) axis {row}: {from_pose} vs {from_points}"
+                    );
+                }
+            }
+        }
+    }
 
     #[test]
     fn resizing_preserves_constant_images_and_camera_geometry() {
