@@ -28,7 +28,8 @@ centroids), and `oracle_edge` / `oracle_inner` are that assignment's accuracy on
 of an instance boundary and on the rest.
 
 A posed RGB model (train_recon.py --posed) takes the views' intrinsics and TF poses as well;
-`--swap-poses` scores it with each view given the next view's pose, to show whether it uses them.
+`--swap-poses` scores it with each view given the previous view's pose (the first the last's), to show
+whether it uses them.
 
 Depth: abs-rel and δ<1.25 over valid pixels; abs-rel also on the room's and on the objects' pixels
 alone, and after scaling each window's prediction by its median ratio to the truth (what is left
@@ -51,7 +52,7 @@ from sklearn.metrics import adjusted_rand_score
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from gf.data import SimDataset  # noqa: E402
-from gf.model import GroupForwardMini  # noqa: E402
+from gf.model import GroupForwardMini, batch_inputs  # noqa: E402
 
 MAX_CLUSTER_POINTS = 20_000
 # min_cluster_size, min_samples, noise distance, merge distance: chosen together on the 24 selection
@@ -169,7 +170,7 @@ def objects_found(truth, labels, min_pixels=MIN_OBJECT_PIXELS):
 
 @torch.no_grad()
 def evaluate(model, dataset, indices=None, grouping=GROUPING, swap_poses=False):
-    """The metrics above over the windows `indices`; `swap_poses` gives every view the next view's pose
+    """The metrics above over the windows `indices`; `swap_poses` gives every view the previous view's pose
     (a posed model that uses its poses should get worse)."""
     model.eval()
     aris, raw_aris, abs_rel, delta, pair_aris, clusters, instances = [], [], [], [], [], [], []
@@ -184,7 +185,7 @@ def evaluate(model, dataset, indices=None, grouping=GROUPING, swap_poses=False):
         batch = {key: value[None] for key, value in item.items()}
         if swap_poses:
             batch['cameras'] = batch['cameras'].roll(1, dims=1)
-        depth, _, embeddings = model(*model.inputs(batch))
+        depth, _, embeddings = model(**model.inputs(batch))
         e = embeddings[0].permute(0, 2, 3, 1).reshape(-1, embeddings.shape[2])
         e = torch.nn.functional.normalize(e, dim=1).numpy()
         truth = item['instance'].reshape(-1).numpy()
@@ -261,18 +262,11 @@ class OnnxModel:
         return self
 
     def inputs(self, batch):
-        """GroupForwardMini.inputs for an exported model, from the inputs its graph takes: images, and
-        points (RGB-D) or intrinsics and poses (posed RGB)."""
-        taken = {i.name for i in self.session.get_inputs()}
-        if 'points' in taken:
-            return batch['images'], batch['points']
-        if 'world_from_camera' in taken:
-            return batch['images'], None, batch['k'].float(), batch['cameras']
-        return (batch['images'],)
+        """GroupForwardMini.inputs for an exported model: the inputs its graph takes."""
+        return batch_inputs(batch, [i.name for i in self.session.get_inputs()])
 
-    def __call__(self, images, points=None, intrinsics=None, world_from_camera=None):
-        given = {'images': images, 'points': points, 'intrinsics': intrinsics, 'world_from_camera': world_from_camera}
-        feed = {name: tensor.numpy() for name, tensor in given.items() if tensor is not None}
+    def __call__(self, **inputs):
+        feed = {name: tensor.numpy() for name, tensor in inputs.items()}
         return tuple(torch.from_numpy(t) for t in self.session.run(['depth', 'gaussians', 'embeddings'], feed))
 
 
@@ -302,7 +296,7 @@ def main():
     parser.add_argument('--grouping', default=','.join(map(str, GROUPING)),
                         help='min_cluster_size,min_samples,noise_distance,merge_distance')
     parser.add_argument('--swap-poses', action='store_true',
-                        help='a posed RGB model: give every view the next view\'s pose (does it use them?)')
+                        help='a posed RGB model: give every view the previous view\'s pose (does it use them?)')
     args = parser.parse_args()
     grouping = tuple(float(v) for v in args.grouping.split(','))
     assert len(grouping) == 4, '--grouping takes four numbers'

@@ -85,9 +85,7 @@ def main():
     height, width = 96, 128
     generator = torch.Generator().manual_seed(0)
     mode = 'rgb_posed' if model.posed else args.mode
-    # Inputs by name as forward() takes them (keyword None for what this mode does not take).
-    names = {'rgbd': ['images', 'points'], 'rgb': ['images'],
-             'rgb_posed': ['images', 'intrinsics', 'world_from_camera']}[mode]
+    names = model.input_names()
 
     def arguments(views):
         images, points, intrinsics, cameras = example_inputs(views, generator, height, width)

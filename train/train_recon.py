@@ -172,7 +172,7 @@ def main():
                 stage = stage_of(progress, args.stages)
                 model.train()
                 depth, gaussians, embeddings, votes, room_logits, sweep_depth = model.forward_training(
-                    *model.inputs(batch))
+                    **model.inputs(batch))
                 l_depth = depth_loss(depth, batch['depth'])
                 if sweep_depth is not None:
                     # Trains the matching features directly (nearest-neighbour half-resolution truth).

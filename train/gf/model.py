@@ -107,6 +107,13 @@ def plane_sweep_cost(features, intrinsics, world_from_camera, full_height, full_
     return cost.reshape(b, v, SWEEP_PLANES, h, w)
 
 
+def batch_inputs(batch, names):
+    """The named contract inputs (GroupForwardMini.input_names) from a batch of gf.data.SimDataset items,
+    as forward()'s keyword arguments."""
+    keys = {'images': 'images', 'points': 'points', 'intrinsics': 'k', 'world_from_camera': 'cameras'}
+    return {name: batch[keys[name]].float() for name in names}
+
+
 def block(cin, cout, stride=1):
     return nn.Sequential(
         nn.Conv2d(cin, cout, 3, stride=stride, padding=1),
@@ -246,14 +253,16 @@ class GroupForwardMini(nn.Module):
         assert self.room_gate, 'no room gate to calibrate'
         self.get_parameter(room_logit_bias_name(self.sharp_gate))[-1] += bias
 
-    def inputs(self, batch):
-        """The positional inputs this model takes from a batch of gf.data.SimDataset items: images, and
-        points (RGB-D) or intrinsics and cameras (posed RGB)."""
+    def input_names(self):
+        """The exported contract's inputs, in order: images, and points (RGB-D) or intrinsics and
+        world_from_camera (posed RGB)."""
         if self.mode == 'rgbd':
-            return batch['images'], batch['points']
-        if self.posed:
-            return batch['images'], None, batch['k'].float(), batch['cameras']
-        return (batch['images'],)
+            return ['images', 'points']
+        return ['images', 'intrinsics', 'world_from_camera'] if self.posed else ['images']
+
+    def inputs(self, batch):
+        """forward()'s keyword inputs from a batch of gf.data.SimDataset items."""
+        return batch_inputs(batch, self.input_names())
 
     def forward(self, images, points=None, intrinsics=None, world_from_camera=None):
         """(depth, gaussians, embeddings): the exported contract."""
