@@ -153,11 +153,15 @@ impl Manifest {
         self.dir.join(&self.file)
     }
 
-    /// Compare the graph's inputs and outputs with the manifest: names, ranks, fixed sizes, types.
+    /// Compare the graph's inputs and outputs with the manifest: names, ranks, fixed sizes, types;
+    /// and a reconstruction model's inputs with its mode's.
     pub fn check(&self, session: &ort::session::Session) -> Result<()> {
         let mut problems = Vec::new();
         compare("input", &self.inputs, session.inputs(), &mut problems);
         compare("output", &self.outputs, session.outputs(), &mut problems);
+        if let Some(mode) = self.mode.filter(|_| self.kind == ModelKind::Reconstruction) {
+            mode_problems(mode, session.inputs(), &mut problems);
+        }
         if problems.is_empty() {
             Ok(())
         } else {
@@ -165,6 +169,29 @@ impl Manifest {
                 model: self.name.clone(),
                 problems,
             })
+        }
+    }
+}
+
+/// The runner feeds a reconstruction model exactly the inputs its mode names; a graph that takes
+/// others could not run.
+fn mode_problems(mode: InputMode, actual: &[ort::value::Outlet], problems: &mut Vec<String>) {
+    let fed: Vec<&str> = std::iter::once("images")
+        .chain(mode.geometry_inputs().iter().copied())
+        .collect();
+    for name in &fed {
+        if !actual.iter().any(|o| o.name() == *name) {
+            problems.push(format!(
+                "a {mode:?} model takes an input `{name}`; the graph has none"
+            ));
+        }
+    }
+    for outlet in actual {
+        if !fed.contains(&outlet.name()) {
+            problems.push(format!(
+                "input `{}` is not one a {mode:?} model is fed",
+                outlet.name()
+            ));
         }
     }
 }

@@ -249,29 +249,6 @@ impl ReconstructionModel {
         }
         let session = open_session(&manifest.model_path(), options)?;
         manifest.check(&session)?;
-        // The runner feeds exactly the inputs the mode names; a graph that takes others cannot run.
-        let mode = manifest.mode.unwrap_or(InputMode::Rgb);
-        let fed: Vec<&str> = std::iter::once("images")
-            .chain(mode.geometry_inputs().iter().copied())
-            .collect();
-        let mut problems: Vec<String> = fed
-            .iter()
-            .filter(|name| !manifest.inputs.iter().any(|t| t.name == **name))
-            .map(|name| format!("a {mode:?} model takes an input `{name}`; the graph has none"))
-            .collect();
-        problems.extend(
-            manifest
-                .inputs
-                .iter()
-                .filter(|t| !fed.contains(&t.name.as_str()))
-                .map(|t| format!("input `{}` is not one a {mode:?} model is fed", t.name)),
-        );
-        if !problems.is_empty() {
-            return Err(ModelError::ContractMismatch {
-                model: manifest.name.clone(),
-                problems,
-            });
-        }
         Ok(Self { session, manifest })
     }
 
