@@ -1,7 +1,8 @@
 //! The shipped models on rooms they never trained on (the sim's `val` split, rendered at the node's
 //! usual 320×240, not the 128×96 of training): the semantic model names pixels through the text
 //! encoder as the ground truth does, a window pass gives instances finite prototypes that name them,
-//! and the RGB-mode reconstruction model builds instances from colour alone with plausible depth.
+//! and the RGB reconstruction model builds instances without sensor depth (from colour and the views'
+//! TF poses) with plausible depth.
 
 #![allow(clippy::unwrap_used)] // test helpers outside #[test] functions unwrap too
 
@@ -210,7 +211,7 @@ fn rgb_model() -> ReconstructionModel {
 }
 
 #[test]
-fn the_rgb_model_builds_instances_from_colour_alone() {
+fn the_rgb_model_builds_instances_without_sensor_depth() {
     let mut model = rgb_model();
     let sim = Simulation::new(generate(Split::Val, 1).unwrap()).unwrap();
     let mut frames = window_frames(&sim);
