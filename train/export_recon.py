@@ -121,6 +121,8 @@ def main():
         losses += f"; dice + focal on unrendered assignment probabilities, weight {train_args['direct_assignment']:g}"
     if train_args.get('hard_push'):
         losses += '; push over violating pairs only'
+    if train_args.get('decouple'):
+        losses += '; the instance losses train the instance head alone (decoder and depth by depth losses)'
     head = 'instance head: 3D centre votes' if model.centre_votes else 'instance head: plain'
     if model.refine:
         head += ' + full-resolution refinement'

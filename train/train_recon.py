@@ -113,6 +113,11 @@ def main():
                         help='with --posed: the plane sweep\'s own depth (soft-argmin over the planes) and '
                              'confidence also go to the decoder, and its depth loss, weighted by this, trains the '
                              'matching features directly; 0 = off')
+    parser.add_argument('--decouple', action='store_true',
+                        help='the instance losses stop at the instance head\'s inputs (gf.model forward_training '
+                             'instance_gradient): in stage 3 the decoder and depth train on the depth losses alone, '
+                             'so grouping losses (the room gate\'s above all) cannot trade depth away; the rendered '
+                             'losses still reach depth through their rasterization (use with --no-rendered)')
     parser.add_argument('--snapshot-every', type=int, default=0,
                         help='also keep the weights every N steps (snapshot_<step>.pt), for equal-step comparisons')
     parser.add_argument('--out', required=True)
@@ -172,7 +177,7 @@ def main():
                 stage = stage_of(progress, args.stages)
                 model.train()
                 depth, gaussians, embeddings, votes, room_logits, sweep_depth = model.forward_training(
-                    **model.inputs(batch))
+                    **model.inputs(batch), instance_gradient=not args.decouple)
                 l_depth = depth_loss(depth, batch['depth'])
                 if sweep_depth is not None:
                     # Trains the matching features directly (nearest-neighbour half-resolution truth).

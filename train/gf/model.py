@@ -273,10 +273,13 @@ class GroupForwardMini(nn.Module):
         (None without `centre_votes`), for the training-only vote loss."""
         return self.forward_training(images, points, intrinsics, world_from_camera)[:4]
 
-    def forward_training(self, images, points=None, intrinsics=None, world_from_camera=None):
+    def forward_training(self, images, points=None, intrinsics=None, world_from_camera=None,
+                         instance_gradient=True):
         """(depth, gaussians, embeddings, votes, room logits, sweep depth): also the full-resolution
         room logits [B,V,H,W] (None without `room_gate`), for the training-only room loss, and the
-        plane sweep's own depth [B,V,H/2,W/2] (None without `sweep_depth`) for its auxiliary loss."""
+        plane sweep's own depth [B,V,H/2,W/2] (None without `sweep_depth`) for its auxiliary loss.
+        With `instance_gradient` False the instance head reads the decoder's features and the depth
+        detached, so the instance losses train that head alone and never move the depth path."""
         b, v = images.shape[0], images.shape[1]
         x = images.flatten(0, 1)
         if self.mode == 'rgbd':
@@ -327,6 +330,8 @@ class GroupForwardMini(nn.Module):
         # compact in 3D, and the decoder's features are shaped by the depth loss first (curriculum).
         x_half = down(x)
         features = torch.cat([down(d0), d1, up(d2), down(log_depth), x_half], dim=1)
+        if not instance_gradient:
+            features = features.detach()
         embeddings = self.instance_head(features)
         room_logit = None
         if self.room_gate:
