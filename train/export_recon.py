@@ -140,6 +140,13 @@ def main():
                  if model.sweep_depth else '')
         head += f'; plane sweep over the views\' intrinsics and TF poses{sweep}'
     device = summary.get('device', 'cpu')
+    origin = 'trained from scratch'
+    if train_args.get('init'):
+        # A run that continued another one: name both, so its steps and minutes are not read as the whole.
+        first = json.loads((Path(train_args['init']).parent / 'summary.json').read_text())
+        decoupled = ' with --decouple' if first['args'].get('decouple') else ''
+        origin = (f"trained from scratch in two runs: {first['steps']} steps ({first['minutes']:.0f} min){decoupled}, "
+                  f"then this run from their weights")
     trained_on = (f"{summary['threads']} CPU thread(s)" if device == 'cpu'
                   else f'a GPU ({device}; the steps are a 2-core CPU budget, see train/ in the README)')
     manifest = f'''# GroupForward-mini ({args.mode}), trained here on the simulator by train/train_recon.py. Not a
@@ -151,7 +158,7 @@ mode = "{mode}"
 input_height = {height}
 input_width = {width}
 embedding_dim = 8
-provenance = "trained from scratch on groupforward-sim train split ({summary['train_windows']} windows x 4 views, 128x96), checkpoint of step {best['step']} ({best['minutes']:.0f} min) of a {summary['steps']}-step, {summary['minutes']:.0f}-min run on {trained_on}, picked by ARI on {best['windows']} val windows; {head}; {losses}{'; pseudo instance labels' if train_args.get('pseudo_labels') else ''}; benchmarks below on {report['windows']} other val windows; ONNX parity {worst:.1e} of the outputs' scale; {size / 1e6:.1f} MB"
+provenance = "{origin} on groupforward-sim train split ({summary['train_windows']} windows x 4 views, 128x96), checkpoint of step {best['step']} ({best['minutes']:.0f} min) of a {summary['steps']}-step, {summary['minutes']:.0f}-min run on {trained_on}, picked by ARI on {best['windows']} val windows; {head}; {losses}{'; pseudo instance labels' if train_args.get('pseudo_labels') else ''}; benchmarks below on {report['windows']} other val windows; ONNX parity {worst:.1e} of the outputs' scale; {size / 1e6:.1f} MB"
 license = "Apache-2.0"
 
 [normalization]

@@ -118,6 +118,9 @@ def main():
                              'instance_gradient): in stage 3 the decoder and depth train on the depth losses alone, '
                              'so grouping losses (the room gate\'s above all) cannot trade depth away; the rendered '
                              'losses still reach depth through their rasterization (use with --no-rendered)')
+    parser.add_argument('--init', default=None,
+                        help='start from these weights (a train_recon.py model.pt of the same architecture) instead '
+                             'of a random draw; with --stages 0 0 1, a coupled stage 3 after a --decouple run')
     parser.add_argument('--snapshot-every', type=int, default=0,
                         help='also keep the weights every N steps (snapshot_<step>.pt), for equal-step comparisons')
     parser.add_argument('--out', required=True)
@@ -142,6 +145,8 @@ def main():
     model = GroupForwardMini(mode=args.mode, refine=args.refine,
                              centre_votes=False if args.no_votes else None, room_gate=args.room_gate > 0,
                              sharp_gate=args.sharp_gate, posed=args.posed, sweep_depth=args.sweep_depth > 0)
+    if args.init:
+        model.load_state_dict(torch.load(args.init, map_location='cpu'))
     device = torch.device(args.device)
     model.to(device)
     print(f'GroupForward-mini ({args.mode}): {parameter_count(model) / 1e6:.2f} M parameters; '
