@@ -53,6 +53,7 @@ from sklearn.metrics import adjusted_rand_score
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from gf.data import SimDataset  # noqa: E402
 from gf.model import GroupForwardMini, batch_inputs  # noqa: E402
+from gf.recover import recovered_model  # noqa: E402
 
 MAX_CLUSTER_POINTS = 20_000
 # min_cluster_size, min_samples, noise distance, merge distance: chosen together on the 24 selection
@@ -270,15 +271,21 @@ class OnnxModel:
         return tuple(torch.from_numpy(t) for t in self.session.run(['depth', 'gaussians', 'embeddings'], feed))
 
 
-def load_model(path, mode, threads, room_bias=0.0):
-    """A checkpoint (.pt), its room logit shifted by `room_bias` (GroupForwardMini.shift_room_logit),
-    or an exported model (.onnx, scored as it is)."""
+def load_model(path, mode, threads, room_bias=0.0, guided=None):
+    """A checkpoint (.pt), its room logit shifted by `room_bias` (GroupForwardMini.shift_room_logit) and
+    its instance head upsampled by joint bilateral upsampling with `guided` = (σ_points, σ_colour);
+    or an exported model (.onnx): scored as it is, or with either change on its recovered weights
+    (gf.recover)."""
     if str(path).endswith('.onnx'):
-        assert not room_bias, 'an exported model is scored as shipped'
-        return OnnxModel(path, threads)
-    model = GroupForwardMini.from_state_dict(torch.load(path), mode)
+        if not room_bias and guided is None:
+            return OnnxModel(path, threads)
+        model = recovered_model(path, mode)
+    else:
+        model = GroupForwardMini.from_state_dict(torch.load(path), mode)
     if room_bias:
         model.shift_room_logit(room_bias)
+    if guided is not None:
+        model.enable_guided_upsampling(*guided)
     return model
 
 
@@ -293,6 +300,9 @@ def main():
     parser.add_argument('--room-bias', type=float, default=0.0,
                         help='a checkpoint with a room gate: add this to its room logit (the calibration '
                              'export_recon.py --room-bias bakes in)')
+    parser.add_argument('--guided', metavar='SIGMA_POINTS,SIGMA_COLOUR',
+                        help='upsample the instance head by joint bilateral upsampling guided by the input '
+                             '(GroupForwardMini.enable_guided_upsampling; export_recon.py --guided bakes it in)')
     parser.add_argument('--grouping', default=','.join(map(str, GROUPING)),
                         help='min_cluster_size,min_samples,noise_distance,merge_distance')
     parser.add_argument('--swap-poses', action='store_true',
@@ -301,7 +311,9 @@ def main():
     grouping = tuple(float(v) for v in args.grouping.split(','))
     assert len(grouping) == 4, '--grouping takes four numbers'
     torch.set_num_threads(args.threads)
-    model = load_model(args.model, args.mode, args.threads, args.room_bias)
+    guided = tuple(float(v) for v in args.guided.split(',')) if args.guided else None
+    assert guided is None or len(guided) == 2, '--guided takes two numbers'
+    model = load_model(args.model, args.mode, args.threads, args.room_bias, guided)
     dataset = SimDataset(args.val, args.mode)
     end = len(dataset) if args.windows is None else min(len(dataset), args.first + args.windows)
     print(json.dumps(evaluate(model, dataset, range(args.first, end), grouping, args.swap_poses)))

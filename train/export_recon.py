@@ -6,10 +6,17 @@ taking the views' intrinsics and poses as well.
 
   train/.venv/bin/python train/export_recon.py --model train/runs/rgbd/model.pt --mode rgbd \\
       --summary train/runs/rgbd/summary.json --report train/runs/rgbd/report.json --name groupforward-mini-rgbd
+
+`--guided SIGMA_POINTS,SIGMA_COLOUR` exports with the instance head's joint bilateral upsampling
+(GroupForwardMini.enable_guided_upsampling; choose the widths with eval_recon.py --guided). A shipped
+model whose training run is gone can be exported again with it from its own weights: `--model
+models/<name>.onnx` recovers them (gf.recover, checked by output parity) and keeps the training part
+of that model's provenance, so no --summary is needed.
 """
 
 import argparse
 import json
+import re
 import sys
 from pathlib import Path
 
@@ -20,6 +27,7 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from gf.data import POINTS_SCALE  # noqa: E402
 from gf.model import GroupForwardMini, parameter_count  # noqa: E402
+from gf.recover import recovered_model  # noqa: E402
 
 MODELS = Path(__file__).resolve().parents[1] / 'models'
 
@@ -37,6 +45,21 @@ def benchmarks_section(report, size, parameters):
         if report.get(key) is not None:
             section += f'val_{key} = {float(report[key]):.4f}\n'
     return section + f'size_mb = {size / 1e6:.2f}\nparameters_m = {parameters / 1e6:.2f}\n'
+
+
+def guided_note(sigma_points, sigma_colour, after_training, points):
+    """The provenance's words for the instance head's joint bilateral upsampling (guided by colour, and
+    by the points where the model takes them)."""
+    when = ', switched on after training (chosen on the selection windows)' if after_training else ''
+    guide = (f'world XYZ and colour (sigma {sigma_points:g} in the points\' units, {sigma_colour:g})' if points
+             else f'colour (sigma {sigma_colour:g})')
+    return f'instance head upsampled by joint bilateral upsampling guided by the input\'s {guide}{when}'
+
+
+def training_provenance(manifest):
+    """The part of a shipped manifest's provenance that describes its training: up to the benchmarks."""
+    line = re.search(r'^provenance = "(.*)"$', manifest, re.M).group(1)
+    return line[:line.index('; benchmarks below')]
 
 
 def example_inputs(views, generator, height=96, width=128):
@@ -65,56 +88,11 @@ class Contract(torch.nn.Module):
         return self.model(**dict(zip(self.names, tensors)))
 
 
-def main():
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument('--model', required=True)
-    parser.add_argument('--mode', choices=['rgbd', 'rgb'], default='rgbd')
-    parser.add_argument('--summary', required=True, help='summary.json of the training run')
-    parser.add_argument('--name', required=True)
-    parser.add_argument('--room-bias', type=float, default=0.0,
-                        help='add this to the room gate\'s logit before export (a calibration chosen on the '
-                             'selection windows with eval_recon.py --room-bias; the report must be scored with it)')
-    parser.add_argument('--report', required=True,
-                        help='eval_recon.py output (JSON) on the val windows held out from checkpoint selection')
-    args = parser.parse_args()
-    model = GroupForwardMini.from_state_dict(torch.load(args.model), args.mode)
-    if args.room_bias:
-        model.shift_room_logit(args.room_bias)
-    model.eval()
-    summary = json.loads(Path(args.summary).read_text())
-    height, width = 96, 128
-    generator = torch.Generator().manual_seed(0)
-    mode = 'rgb_posed' if model.posed else args.mode
-    names = model.input_names()
-
-    def arguments(views):
-        images, points, intrinsics, cameras = example_inputs(views, generator, height, width)
-        every = {'images': images, 'points': points, 'intrinsics': intrinsics, 'world_from_camera': cameras}
-        return {name: every[name] for name in names}
-
-    onnx_path = MODELS / f'{args.name}.onnx'
-    dynamic = {name: {1: 'V'} for name in names}
-    dynamic.update({'depth': {1: 'V'}, 'gaussians': {1: 'V'}, 'embeddings': {1: 'V'}})
-    torch.onnx.export(Contract(model, names), tuple(arguments(2).values()), onnx_path, input_names=names,
-                      output_names=['depth', 'gaussians', 'embeddings'], dynamic_axes=dynamic, opset_version=17,
-                      dynamo=False)
-    session = ort.InferenceSession(str(onnx_path), providers=['CPUExecutionProvider'])
-    assert [i.name for i in session.get_inputs()] == names, session.get_inputs()
-    worst = 0.0
-    for views in (2, 4):
-        feed = arguments(views)
-        with torch.no_grad():
-            expected = model(**feed)
-        got = session.run(['depth', 'gaussians', 'embeddings'], {k: t.numpy() for k, t in feed.items()})
-        for e, g in zip(expected, got):
-            # Relative to the output's scale: float32 rounding grows with the values (embeddings reach ~35).
-            worst = max(worst, float(np.abs(e.numpy() - g).max()) / max(1.0, float(e.abs().max())))
-    assert worst <= 1e-4, f'ONNX parity {worst} > 1e-4 of the outputs\' scale'
+def checkpoint_provenance(args, model, summary, guided):
+    """The provenance of a model exported from a training run's checkpoint, up to its benchmarks."""
     best = summary['best']
-    report = json.loads(Path(args.report).read_text())
     losses = ('depth, photometric, direct and rendered instance losses' if summary.get('rendered_losses')
               else 'depth and direct instance losses only')
-    size = onnx_path.stat().st_size
     train_args = summary['args']
     # The experiments' extra instance terms, so a model trained with them does not read as direct-only.
     if train_args.get('direct_assignment'):
@@ -149,6 +127,81 @@ def main():
                   f"then this run from their weights")
     trained_on = (f"{summary['threads']} CPU thread(s)" if device == 'cpu'
                   else f'a GPU ({device}; the steps are a 2-core CPU budget, see train/ in the README)')
+    if guided:
+        head += f'; {guided_note(*guided, after_training=False, points=model.mode == "rgbd")}'
+    return (f"{origin} on groupforward-sim train split ({summary['train_windows']} windows x 4 views, 128x96), "
+            f"checkpoint of step {best['step']} ({best['minutes']:.0f} min) of a {summary['steps']}-step, "
+            f"{summary['minutes']:.0f}-min run on {trained_on}, picked by ARI on {best['windows']} val windows; {head}; "
+            f"{losses}{'; pseudo instance labels' if train_args.get('pseudo_labels') else ''}")
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument('--model', required=True)
+    parser.add_argument('--mode', choices=['rgbd', 'rgb'], default='rgbd')
+    parser.add_argument('--summary', help='summary.json of the training run (not for an exported --model)')
+    parser.add_argument('--name', required=True)
+    parser.add_argument('--room-bias', type=float, default=0.0,
+                        help='add this to the room gate\'s logit before export (a calibration chosen on the '
+                             'selection windows with eval_recon.py --room-bias; the report must be scored with it)')
+    parser.add_argument('--report', required=True,
+                        help='eval_recon.py output (JSON) on the val windows held out from checkpoint selection')
+    parser.add_argument('--guided', metavar='SIGMA_POINTS,SIGMA_COLOUR',
+                        help='upsample the instance head by joint bilateral upsampling (eval_recon.py --guided)')
+    args = parser.parse_args()
+    exported = args.model.endswith('.onnx')
+    if exported == bool(args.summary):
+        parser.error('--summary goes with a checkpoint, and only with one (an exported model has its manifest)')
+    if exported:
+        # Read before the export below may overwrite the same files.
+        earlier = training_provenance(Path(args.model).with_suffix('.toml').read_text())
+        model = recovered_model(args.model, args.mode)
+    else:
+        model = GroupForwardMini.from_state_dict(torch.load(args.model), args.mode)
+    if args.room_bias:
+        model.shift_room_logit(args.room_bias)
+    guided = tuple(float(v) for v in args.guided.split(',')) if args.guided else None
+    if guided:
+        model.enable_guided_upsampling(*guided)
+    model.eval()
+    height, width = 96, 128
+    generator = torch.Generator().manual_seed(0)
+    mode = 'rgb_posed' if model.posed else args.mode
+    names = model.input_names()
+
+    def arguments(views):
+        images, points, intrinsics, cameras = example_inputs(views, generator, height, width)
+        every = {'images': images, 'points': points, 'intrinsics': intrinsics, 'world_from_camera': cameras}
+        return {name: every[name] for name in names}
+
+    onnx_path = MODELS / f'{args.name}.onnx'
+    dynamic = {name: {1: 'V'} for name in names}
+    dynamic.update({'depth': {1: 'V'}, 'gaussians': {1: 'V'}, 'embeddings': {1: 'V'}})
+    torch.onnx.export(Contract(model, names), tuple(arguments(2).values()), onnx_path, input_names=names,
+                      output_names=['depth', 'gaussians', 'embeddings'], dynamic_axes=dynamic, opset_version=17,
+                      dynamo=False)
+    session = ort.InferenceSession(str(onnx_path), providers=['CPUExecutionProvider'])
+    assert [i.name for i in session.get_inputs()] == names, session.get_inputs()
+    worst = 0.0
+    for views in (2, 4):
+        feed = arguments(views)
+        with torch.no_grad():
+            expected = model(**feed)
+        got = session.run(['depth', 'gaussians', 'embeddings'], {k: t.numpy() for k, t in feed.items()})
+        for e, g in zip(expected, got):
+            # Relative to the output's scale: float32 rounding grows with the values (embeddings reach ~35).
+            worst = max(worst, float(np.abs(e.numpy() - g).max()) / max(1.0, float(e.abs().max())))
+    assert worst <= 1e-4, f'ONNX parity {worst} > 1e-4 of the outputs\' scale'
+    report = json.loads(Path(args.report).read_text())
+    size = onnx_path.stat().st_size
+    if exported:
+        provenance = earlier
+        if args.room_bias:
+            provenance += f'; room logit shifted by a further {args.room_bias:+g} (chosen on the selection windows)'
+        if guided:
+            provenance += f'; {guided_note(*guided, after_training=True, points=model.mode == "rgbd")}'
+    else:
+        provenance = checkpoint_provenance(args, model, json.loads(Path(args.summary).read_text()), guided)
     manifest = f'''# GroupForward-mini ({args.mode}), trained here on the simulator by train/train_recon.py. Not a
 # pretrained paper model: {parameter_count(model) / 1e6:.2f} M parameters, small synthetic rooms only.
 name = "{args.name}"
@@ -158,7 +211,7 @@ mode = "{mode}"
 input_height = {height}
 input_width = {width}
 embedding_dim = 8
-provenance = "{origin} on groupforward-sim train split ({summary['train_windows']} windows x 4 views, 128x96), checkpoint of step {best['step']} ({best['minutes']:.0f} min) of a {summary['steps']}-step, {summary['minutes']:.0f}-min run on {trained_on}, picked by ARI on {best['windows']} val windows; {head}; {losses}{'; pseudo instance labels' if train_args.get('pseudo_labels') else ''}; benchmarks below on {report['windows']} other val windows; ONNX parity {worst:.1e} of the outputs' scale; {size / 1e6:.1f} MB"
+provenance = "{provenance}; benchmarks below on {report['windows']} other val windows; ONNX parity {worst:.1e} of the outputs' scale; {size / 1e6:.1f} MB"
 license = "Apache-2.0"
 
 [normalization]

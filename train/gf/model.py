@@ -24,6 +24,12 @@ U-Net decoder, and three heads (DESIGN §4 contract):
   half-resolution gate lets objects grow a pixel or two into the room, and those room pixels are
   most of what the room-gate model's grouping gets wrong (README, Training). An experiment: it
   removed most of that bleed but did not beat the half-resolution gate's ARI in one seed.
+  With `guided_upsampling` (σ_points, σ_colour) the half-resolution room logit and embeddings are
+  brought to full resolution by joint bilateral upsampling (Kopf et al. 2007) instead of bilinear:
+  each full-resolution pixel averages the 3×3 half-resolution cells around it, weighted by how close
+  each cell's mean input (world XYZ in RGB-D mode, colour) is to the pixel's own, so a pixel on an
+  object's silhouette takes its value from the object's cells, not from the wall's. It has no weights
+  and can be switched on for a model trained without it (`enable_guided_upsampling`).
 
 RGB-D mode (the node's default) takes `points` (world XYZ from sensor depth, centred and scaled as
 gf.data.world_points does) next to `images`; RGB mode (the paper's setting) takes images only and the
@@ -160,7 +166,8 @@ def positional_encoding(height, width, dim):
 
 class GroupForwardMini(nn.Module):
     def __init__(self, mode='rgbd', height=96, width=128, embedding_dim=8, width_mult=1.0, refine=False,
-                 centre_votes=None, room_gate=False, sharp_gate=False, posed=False, sweep_depth=False):
+                 centre_votes=None, room_gate=False, sharp_gate=False, posed=False, sweep_depth=False,
+                 guided_upsampling=None):
         super().__init__()
         assert not posed or mode == 'rgb', 'the posed plane sweep is for RGB mode (RGB-D has points)'
         assert mode in ('rgbd', 'rgb')
@@ -228,6 +235,26 @@ class GroupForwardMini(nn.Module):
                 nn.Conv2d(c[0] + cin + 1, 16, 3, padding=1), nn.GELU(), nn.Conv2d(16, 1, 3, padding=1))
             nn.init.zeros_(self.instance_room_refine[2].weight)
             nn.init.zeros_(self.instance_room_refine[2].bias)
+        if guided_upsampling is not None:
+            self.enable_guided_upsampling(*guided_upsampling)
+
+    def enable_guided_upsampling(self, sigma_points, sigma_colour):
+        """Upsample the instance head by joint bilateral upsampling from now on (range kernels σ_points
+        on the points input, in its scaled units, and σ_colour on colour in [0, 1]); kept in the
+        state dict, so a checkpoint or an export carries it."""
+        assert sigma_points > 0 and sigma_colour > 0, 'both range kernels need a positive width'
+        self.register_buffer('instance_guide_sigmas', torch.tensor([sigma_points, sigma_colour]))
+
+    @property
+    def guided_upsampling(self):
+        return hasattr(self, 'instance_guide_sigmas')
+
+    def upsample_instance(self, half, guide):
+        """The half-resolution instance output `half` [N,C,H/2,W/2] at full resolution: bilinear, or
+        guided by the full-resolution input `guide` [N,3 or 6,H,W] (colour, then points)."""
+        if not self.guided_upsampling:
+            return F.interpolate(half, scale_factor=2.0, mode='bilinear', align_corners=False)
+        return joint_bilateral_upsample(half, guide, self.instance_guide_sigmas[0], self.instance_guide_sigmas[1])
 
     def reconstruction_parameters(self):
         return [p for name, p in self.named_parameters() if not name.startswith('instance_')]
@@ -236,13 +263,19 @@ class GroupForwardMini(nn.Module):
         return [p for name, p in self.named_parameters() if name.startswith('instance_')]
 
     @classmethod
+    def for_parameter_names(cls, names, mode):
+        """An untrained model with the architecture whose state dict has (at least) these names."""
+        names = set(names)
+        prefixed = lambda prefix: any(name.startswith(prefix) for name in names)  # noqa: E731
+        return cls(mode=mode, refine=prefixed('instance_refine'), centre_votes=prefixed('instance_vote_mlp'),
+                   room_gate='instance_room_vector' in names, sharp_gate=prefixed('instance_room_refine'),
+                   posed='sweep_features.weight' in names, sweep_depth='sweep_temperature' in names,
+                   guided_upsampling=(1.0, 1.0) if 'instance_guide_sigmas' in names else None)
+
+    @classmethod
     def from_state_dict(cls, state, mode):
         """A model with the architecture the checkpoint `state` was trained with, its weights loaded."""
-        model = cls(mode=mode, refine=any(k.startswith('instance_refine') for k in state),
-                    centre_votes=any(k.startswith('instance_vote_mlp') for k in state),
-                    room_gate='instance_room_vector' in state,
-                    sharp_gate=any(k.startswith('instance_room_refine') for k in state),
-                    posed='sweep_features.weight' in state, sweep_depth='sweep_temperature' in state)
+        model = cls.for_parameter_names(state, mode)
         model.load_state_dict(state)
         return model
 
@@ -335,7 +368,7 @@ class GroupForwardMini(nn.Module):
         embeddings = self.instance_head(features)
         room_logit = None
         if self.room_gate:
-            room_logit = F.interpolate(embeddings[:, -1:], scale_factor=2.0, mode='bilinear', align_corners=False)
+            room_logit = self.upsample_instance(embeddings[:, -1:], x)
             embeddings = embeddings[:, :-1]
             if self.sharp_gate:
                 room_logit = room_logit + self.instance_room_refine(torch.cat([d0, x, room_logit], dim=1))
@@ -344,7 +377,7 @@ class GroupForwardMini(nn.Module):
             vote = x_half[:, 3:6] + embeddings[:, :3]
             scaled = torch.cat([vote * (2.0 ** i) * math.pi for i in range(VOTE_FREQUENCIES)], dim=1)
             embeddings = self.instance_vote_mlp(torch.cat([vote, scaled.sin(), scaled.cos(), embeddings[:, 3:]], dim=1))
-        embeddings = F.interpolate(embeddings, scale_factor=2.0, mode='bilinear', align_corners=False)
+        embeddings = self.upsample_instance(embeddings, x)
         if self.refine:
             embeddings = embeddings + self.instance_refine(torch.cat([d0, embeddings], dim=1))
         if self.room_gate:
@@ -355,6 +388,34 @@ class GroupForwardMini(nn.Module):
         shape = lambda t: t.reshape(b, v, *t.shape[1:])  # noqa: E731
         return (shape(depth[:, 0]), shape(gaussians), shape(embeddings), None if vote is None else shape(vote),
                 None if room_logit is None else shape(room_logit[:, 0]), sweep_depth)
+
+
+def joint_bilateral_upsample(half, guide, sigma_points, sigma_colour):
+    """`half` [N,C,H/2,W/2] at full resolution [N,C,H,W]: each pixel the weighted mean of the 3×3 cells
+    around it, weights exp(−d²/2 − ‖g − ḡ‖²/2σ²) with d the distance from the pixel's centre to the
+    cell's (in cells), g the pixel's guide (colour, σ_colour; points, σ_points) and ḡ the cell's mean
+    guide (the 2×2 pixels it covers). Borders repeat the edge cells."""
+    height, width = guide.shape[-2], guide.shape[-1]
+    up = lambda t: F.interpolate(t, scale_factor=2.0, mode='nearest')  # noqa: E731
+    values, cell_guide = up(half), up(F.avg_pool2d(guide, 2))
+    # A pixel's centre lies a quarter cell from its cell's centre: towards -1 for even rows/columns.
+    row_offset = (torch.arange(height) % 2 - 0.5).reshape(1, 1, -1, 1) * 0.5
+    column_offset = (torch.arange(width) % 2 - 0.5).reshape(1, 1, 1, -1) * 0.5
+    sigmas = [sigma_colour] * 3 + [sigma_points] * (guide.shape[1] - 3)
+    inverse_variance = torch.stack([1.0 / (2.0 * s ** 2) for s in sigmas]).reshape(1, -1, 1, 1)
+    padded_values = F.pad(values, (2, 2, 2, 2), mode='replicate')
+    padded_guide = F.pad(cell_guide, (2, 2, 2, 2), mode='replicate')
+    exponents, neighbours = [], []
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            rows, columns = slice(2 + 2 * dy, 2 + 2 * dy + height), slice(2 + 2 * dx, 2 + 2 * dx + width)
+            spatial = ((dy - row_offset) ** 2 + (dx - column_offset) ** 2) / 2.0
+            difference = guide - padded_guide[..., rows, columns]
+            exponents.append(-spatial - (difference ** 2 * inverse_variance).sum(1, keepdim=True))
+            neighbours.append(padded_values[..., rows, columns])
+    # A softmax over the nine cells: the largest weight is 1 however narrow the kernels.
+    weights = torch.softmax(torch.stack(exponents), dim=0)
+    return (weights * torch.stack(neighbours)).sum(0)
 
 
 def room_logit_bias_name(sharp_gate):

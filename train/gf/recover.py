@@ -1,0 +1,76 @@
+"""A checkpoint recovered from an exported GroupForward-mini (models/<name>.onnx), for a shipped
+model whose training run is gone: to score it with an inference-time change (eval_recon.py
+`--guided`) or export it again with one (export_recon.py).
+
+The legacy exporter keeps most parameters as initializers named `model.<parameter>`, but renames the
+GroupNorm affines (`onnx::Mul_*` / `onnx::Add_*`, shaped [C,1,1]) and the Linear weights
+(`onnx::MatMul_*`, transposed). Those are matched to the architecture's missing parameters in
+order, checked by shape, and the whole recovery by output parity with the ONNX file."""
+
+import re
+
+import numpy as np
+import onnx
+import torch
+from onnx import numpy_helper
+
+from .model import GroupForwardMini
+
+PARITY = 1e-4  # of each output's largest magnitude (at least 1), as export_recon.py checks
+
+
+class RecoveryError(Exception):
+    pass
+
+
+def _number(name):
+    return int(re.findall(r'\d+$', name)[0])
+
+
+def recovered_model(path, mode):
+    """GroupForwardMini with the weights of the ONNX file `path` (its room shift included), in eval mode."""
+    graph = onnx.load(str(path)).graph
+    initializers = {t.name: numpy_helper.to_array(t) for t in graph.initializer}
+    state = {name[len('model.'):]: torch.from_numpy(value.copy())
+             for name, value in initializers.items() if name.startswith('model.')}
+    # Only the renamed initializers are missing, and none of them decides the architecture.
+    model = GroupForwardMini.for_parameter_names(state, mode)
+    expected = model.state_dict()
+    missing = [k for k in expected if k not in state]
+    renamed = sorted((k for k in initializers if k.startswith('onnx::')), key=_number)
+    matrices = [k for k in renamed if k.startswith('onnx::MatMul')]
+    affines = [k for k in renamed if not k.startswith('onnx::MatMul')]
+    vectors = [k for k in missing if expected[k].dim() == 1]
+    linears = [k for k in missing if expected[k].dim() == 2]
+    if len(vectors) != len(affines) or len(linears) != len(matrices) or len(vectors) + len(linears) != len(missing):
+        raise RecoveryError(f'{path}: {len(missing)} parameters to recover from {len(renamed)} renamed initializers')
+    for name, source, value in [(k, s, initializers[s].reshape(-1)) for k, s in zip(vectors, affines)] + \
+            [(k, s, initializers[s].T) for k, s in zip(linears, matrices)]:
+        if value.shape != expected[name].shape:
+            raise RecoveryError(f'{path}: {source} {value.shape} does not fit {name} {tuple(expected[name].shape)}')
+        state[name] = torch.from_numpy(np.ascontiguousarray(value))
+    model.load_state_dict(state)
+    model.eval()
+    check_parity(model, path)
+    return model
+
+
+def check_parity(model, path):
+    """Raise RecoveryError unless `model` reproduces the ONNX file's outputs on random inputs."""
+    import onnxruntime as ort
+
+    session = ort.InferenceSession(str(path), providers=['CPUExecutionProvider'])
+    generator = torch.Generator().manual_seed(0)
+    every = {'images': torch.rand(1, 2, 3, 96, 128, generator=generator),
+             'points': torch.randn(1, 2, 3, 96, 128, generator=generator) * 0.5,
+             'intrinsics': torch.tensor([[64.0, 0, 63.5], [0, 64.0, 47.5], [0, 0, 1]]).expand(1, 2, 3, 3).contiguous(),
+             'world_from_camera': torch.eye(4).repeat(1, 2, 1, 1)}
+    every['world_from_camera'][0, 1, 0, 3] = 0.1
+    feed = {name: every[name] for name in model.input_names()}
+    with torch.no_grad():
+        ours = model(**feed)
+    theirs = session.run(['depth', 'gaussians', 'embeddings'], {k: v.numpy() for k, v in feed.items()})
+    for name, a, b in zip(('depth', 'gaussians', 'embeddings'), ours, theirs):
+        worst = float(np.abs(a.numpy() - b).max()) / max(1.0, float(np.abs(b).max()))
+        if worst > PARITY:
+            raise RecoveryError(f'{path}: recovered {name} differs by {worst:.1e} of its scale')
