@@ -289,6 +289,14 @@ def load_model(path, mode, threads, room_bias=0.0, guided=None):
     return model
 
 
+def guided_widths(text):
+    """`--guided SIGMA_POINTS,SIGMA_COLOUR` (argparse type)."""
+    widths = tuple(float(v) for v in text.split(','))
+    if len(widths) != 2:
+        raise argparse.ArgumentTypeError('--guided takes two numbers')
+    return widths
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument('--model', required=True, help='a checkpoint (.pt) or an exported model (.onnx)')
@@ -300,7 +308,7 @@ def main():
     parser.add_argument('--room-bias', type=float, default=0.0,
                         help='a checkpoint with a room gate: add this to its room logit (the calibration '
                              'export_recon.py --room-bias bakes in)')
-    parser.add_argument('--guided', metavar='SIGMA_POINTS,SIGMA_COLOUR',
+    parser.add_argument('--guided', metavar='SIGMA_POINTS,SIGMA_COLOUR', type=guided_widths,
                         help='upsample the instance head by joint bilateral upsampling guided by the input '
                              '(GroupForwardMini.enable_guided_upsampling; export_recon.py --guided bakes it in)')
     parser.add_argument('--grouping', default=','.join(map(str, GROUPING)),
@@ -311,9 +319,7 @@ def main():
     grouping = tuple(float(v) for v in args.grouping.split(','))
     assert len(grouping) == 4, '--grouping takes four numbers'
     torch.set_num_threads(args.threads)
-    guided = tuple(float(v) for v in args.guided.split(',')) if args.guided else None
-    assert guided is None or len(guided) == 2, '--guided takes two numbers'
-    model = load_model(args.model, args.mode, args.threads, args.room_bias, guided)
+    model = load_model(args.model, args.mode, args.threads, args.room_bias, args.guided)
     dataset = SimDataset(args.val, args.mode)
     end = len(dataset) if args.windows is None else min(len(dataset), args.first + args.windows)
     print(json.dumps(evaluate(model, dataset, range(args.first, end), grouping, args.swap_poses)))

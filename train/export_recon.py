@@ -20,14 +20,14 @@ import re
 import sys
 from pathlib import Path
 
-import numpy as np
 import onnxruntime as ort
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from gf.data import POINTS_SCALE  # noqa: E402
-from gf.model import GroupForwardMini, parameter_count  # noqa: E402
+from gf.model import GroupForwardMini, example_inputs, onnx_parity, parameter_count  # noqa: E402
 from gf.recover import recovered_model  # noqa: E402
+from eval_recon import guided_widths  # noqa: E402
 
 MODELS = Path(__file__).resolve().parents[1] / 'models'
 
@@ -60,21 +60,6 @@ def training_provenance(manifest):
     """The part of a shipped manifest's provenance that describes its training: up to the benchmarks."""
     line = re.search(r'^provenance = "(.*)"$', manifest, re.M).group(1)
     return line[:line.index('; benchmarks below')]
-
-
-def example_inputs(views, generator, height=96, width=128):
-    """Random images and points, and cameras like the sim's (90° field of view, views 0.2 m apart along
-    a line, turned up to ±0.3 rad), posed in the points' frame, for the parity check."""
-    images = torch.rand(1, views, 3, height, width, generator=generator)
-    points = torch.randn(1, views, 3, height, width, generator=generator) * 0.5
-    k = torch.tensor([[width / 2, 0.0, (width - 1) / 2], [0.0, width / 2, (height - 1) / 2], [0.0, 0.0, 1.0]])
-    intrinsics = k.expand(1, views, 3, 3).contiguous()
-    cameras = torch.eye(4).repeat(1, views, 1, 1)
-    for i, yaw in enumerate((torch.rand(views, generator=generator) - 0.5) * 0.6):
-        c, s = torch.cos(yaw), torch.sin(yaw)
-        cameras[0, i, :3, :3] = torch.tensor([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
-        cameras[0, i, 0, 3] = (i - (views - 1) / 2) * 0.2 / POINTS_SCALE
-    return images, points, intrinsics, cameras
 
 
 class Contract(torch.nn.Module):
@@ -146,7 +131,7 @@ def main():
                              'selection windows with eval_recon.py --room-bias; the report must be scored with it)')
     parser.add_argument('--report', required=True,
                         help='eval_recon.py output (JSON) on the val windows held out from checkpoint selection')
-    parser.add_argument('--guided', metavar='SIGMA_POINTS,SIGMA_COLOUR',
+    parser.add_argument('--guided', metavar='SIGMA_POINTS,SIGMA_COLOUR', type=guided_widths,
                         help='upsample the instance head by joint bilateral upsampling (eval_recon.py --guided)')
     args = parser.parse_args()
     exported = args.model.endswith('.onnx')
@@ -160,7 +145,7 @@ def main():
         model = GroupForwardMini.from_state_dict(torch.load(args.model), args.mode)
     if args.room_bias:
         model.shift_room_logit(args.room_bias)
-    guided = tuple(float(v) for v in args.guided.split(',')) if args.guided else None
+    guided = args.guided
     if guided:
         model.enable_guided_upsampling(*guided)
     model.eval()
@@ -170,9 +155,7 @@ def main():
     names = model.input_names()
 
     def arguments(views):
-        images, points, intrinsics, cameras = example_inputs(views, generator, height, width)
-        every = {'images': images, 'points': points, 'intrinsics': intrinsics, 'world_from_camera': cameras}
-        return {name: every[name] for name in names}
+        return example_inputs(names, views, generator, height, width)
 
     onnx_path = MODELS / f'{args.name}.onnx'
     dynamic = {name: {1: 'V'} for name in names}
@@ -182,15 +165,7 @@ def main():
                       dynamo=False)
     session = ort.InferenceSession(str(onnx_path), providers=['CPUExecutionProvider'])
     assert [i.name for i in session.get_inputs()] == names, session.get_inputs()
-    worst = 0.0
-    for views in (2, 4):
-        feed = arguments(views)
-        with torch.no_grad():
-            expected = model(**feed)
-        got = session.run(['depth', 'gaussians', 'embeddings'], {k: t.numpy() for k, t in feed.items()})
-        for e, g in zip(expected, got):
-            # Relative to the output's scale: float32 rounding grows with the values (embeddings reach ~35).
-            worst = max(worst, float(np.abs(e.numpy() - g).max()) / max(1.0, float(e.abs().max())))
+    worst = max(onnx_parity(model, session, arguments(views)) for views in (2, 4))
     assert worst <= 1e-4, f'ONNX parity {worst} > 1e-4 of the outputs\' scale'
     report = json.loads(Path(args.report).read_text())
     size = onnx_path.stat().st_size

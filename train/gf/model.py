@@ -120,6 +120,34 @@ def batch_inputs(batch, names):
     return {name: batch[keys[name]].float() for name in names}
 
 
+def example_inputs(names, views, generator, height=96, width=128):
+    """The named contract inputs, random: images and points, and cameras like the sim's (90° field of
+    view, views 0.2 m apart along a line, turned up to ±0.3 rad), posed in the points' frame; for
+    checking an exported graph against the model."""
+    images = torch.rand(1, views, 3, height, width, generator=generator)
+    points = torch.randn(1, views, 3, height, width, generator=generator) * 0.5
+    k = torch.tensor([[width / 2, 0.0, (width - 1) / 2], [0.0, width / 2, (height - 1) / 2], [0.0, 0.0, 1.0]])
+    intrinsics = k.expand(1, views, 3, 3).contiguous()
+    cameras = torch.eye(4).repeat(1, views, 1, 1)
+    for i, yaw in enumerate((torch.rand(views, generator=generator) - 0.5) * 0.6):
+        c, s = torch.cos(yaw), torch.sin(yaw)
+        cameras[0, i, :3, :3] = torch.tensor([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+        cameras[0, i, 0, 3] = (i - (views - 1) / 2) * 0.2 / POINTS_SCALE
+    every = {'images': images, 'points': points, 'intrinsics': intrinsics, 'world_from_camera': cameras}
+    return {name: every[name] for name in names}
+
+
+def onnx_parity(model, session, feed):
+    """The largest difference between `model`'s outputs and an onnxruntime `session`'s on `feed`, as a
+    share of each output's largest magnitude (at least 1): float32 rounding grows with the values
+    (embeddings reach ~35)."""
+    with torch.no_grad():
+        expected = model(**feed)
+    got = session.run(['depth', 'gaussians', 'embeddings'], {k: t.numpy() for k, t in feed.items()})
+    return max(float((e - torch.from_numpy(g)).abs().max()) / max(1.0, float(e.abs().max()))
+               for e, g in zip(expected, got))
+
+
 def block(cin, cout, stride=1):
     return nn.Sequential(
         nn.Conv2d(cin, cout, 3, stride=stride, padding=1),
@@ -249,12 +277,12 @@ class GroupForwardMini(nn.Module):
     def guided_upsampling(self):
         return hasattr(self, 'instance_guide_sigmas')
 
-    def upsample_instance(self, half, guide):
+    def upsample_instance(self, half, weights):
         """The half-resolution instance output `half` [N,C,H/2,W/2] at full resolution: bilinear, or
-        guided by the full-resolution input `guide` [N,3 or 6,H,W] (colour, then points)."""
-        if not self.guided_upsampling:
+        by joint bilateral upsampling with `weights` (bilateral_weights of this forward's input)."""
+        if weights is None:
             return F.interpolate(half, scale_factor=2.0, mode='bilinear', align_corners=False)
-        return joint_bilateral_upsample(half, guide, self.instance_guide_sigmas[0], self.instance_guide_sigmas[1])
+        return joint_bilateral_upsample(half, weights)
 
     def reconstruction_parameters(self):
         return [p for name, p in self.named_parameters() if not name.startswith('instance_')]
@@ -366,9 +394,11 @@ class GroupForwardMini(nn.Module):
         if not instance_gradient:
             features = features.detach()
         embeddings = self.instance_head(features)
+        upsampling = (bilateral_weights(x, self.instance_guide_sigmas[0], self.instance_guide_sigmas[1])
+                      if self.guided_upsampling else None)
         room_logit = None
         if self.room_gate:
-            room_logit = self.upsample_instance(embeddings[:, -1:], x)
+            room_logit = self.upsample_instance(embeddings[:, -1:], upsampling)
             embeddings = embeddings[:, :-1]
             if self.sharp_gate:
                 room_logit = room_logit + self.instance_room_refine(torch.cat([d0, x, room_logit], dim=1))
@@ -377,7 +407,7 @@ class GroupForwardMini(nn.Module):
             vote = x_half[:, 3:6] + embeddings[:, :3]
             scaled = torch.cat([vote * (2.0 ** i) * math.pi for i in range(VOTE_FREQUENCIES)], dim=1)
             embeddings = self.instance_vote_mlp(torch.cat([vote, scaled.sin(), scaled.cos(), embeddings[:, 3:]], dim=1))
-        embeddings = self.upsample_instance(embeddings, x)
+        embeddings = self.upsample_instance(embeddings, upsampling)
         if self.refine:
             embeddings = embeddings + self.instance_refine(torch.cat([d0, embeddings], dim=1))
         if self.room_gate:
@@ -390,32 +420,43 @@ class GroupForwardMini(nn.Module):
                 None if room_logit is None else shape(room_logit[:, 0]), sweep_depth)
 
 
-def joint_bilateral_upsample(half, guide, sigma_points, sigma_colour):
-    """`half` [N,C,H/2,W/2] at full resolution [N,C,H,W]: each pixel the weighted mean of the 3×3 cells
-    around it, weights exp(−d²/2 − ‖g − ḡ‖²/2σ²) with d the distance from the pixel's centre to the
-    cell's (in cells), g the pixel's guide (colour, σ_colour; points, σ_points) and ḡ the cell's mean
-    guide (the 2×2 pixels it covers). Borders repeat the edge cells."""
+def bilateral_weights(guide, sigma_points, sigma_colour):
+    """Joint bilateral upsampling weights [9,N,1,H,W] of the 3×3 half-resolution cells around each pixel
+    of `guide` [N,3 or 6,H,W]: softmax over the cells of −d²/2 − ‖g − ḡ‖²/2σ², with d the distance from
+    the pixel's centre to the cell's (in cells), g the pixel's guide (colour, σ_colour; points,
+    σ_points) and ḡ the cell's mean guide (the 2×2 pixels it covers). Borders repeat the edge cells.
+    They depend on the guide alone, so one set serves every output upsampled from the same views."""
     height, width = guide.shape[-2], guide.shape[-1]
-    up = lambda t: F.interpolate(t, scale_factor=2.0, mode='nearest')  # noqa: E731
-    values, cell_guide = up(half), up(F.avg_pool2d(guide, 2))
+    cell_guide = F.interpolate(F.avg_pool2d(guide, 2), scale_factor=2.0, mode='nearest')
     # A pixel's centre lies a quarter cell from its cell's centre: towards -1 for even rows/columns.
     row_offset = (torch.arange(height) % 2 - 0.5).reshape(1, 1, -1, 1) * 0.5
     column_offset = (torch.arange(width) % 2 - 0.5).reshape(1, 1, 1, -1) * 0.5
     sigmas = [sigma_colour] * 3 + [sigma_points] * (guide.shape[1] - 3)
     inverse_variance = torch.stack([1.0 / (2.0 * s ** 2) for s in sigmas]).reshape(1, -1, 1, 1)
-    padded_values = F.pad(values, (2, 2, 2, 2), mode='replicate')
     padded_guide = F.pad(cell_guide, (2, 2, 2, 2), mode='replicate')
-    exponents, neighbours = [], []
-    for dy in (-1, 0, 1):
-        for dx in (-1, 0, 1):
-            rows, columns = slice(2 + 2 * dy, 2 + 2 * dy + height), slice(2 + 2 * dx, 2 + 2 * dx + width)
-            spatial = ((dy - row_offset) ** 2 + (dx - column_offset) ** 2) / 2.0
-            difference = guide - padded_guide[..., rows, columns]
-            exponents.append(-spatial - (difference ** 2 * inverse_variance).sum(1, keepdim=True))
-            neighbours.append(padded_values[..., rows, columns])
+    exponents = []
+    for rows, columns, dy, dx in _neighbour_cells(height, width):
+        spatial = ((dy - row_offset) ** 2 + (dx - column_offset) ** 2) / 2.0
+        difference = guide - padded_guide[..., rows, columns]
+        exponents.append(-spatial - (difference ** 2 * inverse_variance).sum(1, keepdim=True))
     # A softmax over the nine cells: the largest weight is 1 however narrow the kernels.
-    weights = torch.softmax(torch.stack(exponents), dim=0)
-    return (weights * torch.stack(neighbours)).sum(0)
+    return torch.softmax(torch.stack(exponents), dim=0)
+
+
+def joint_bilateral_upsample(half, weights):
+    """`half` [N,C,H/2,W/2] at full resolution [N,C,H,W]: each pixel the mean of the 3×3 cells around it
+    under `weights` (bilateral_weights)."""
+    height, width = weights.shape[-2], weights.shape[-1]
+    padded = F.pad(F.interpolate(half, scale_factor=2.0, mode='nearest'), (2, 2, 2, 2), mode='replicate')
+    neighbours = torch.stack([padded[..., rows, columns] for rows, columns, _, _ in _neighbour_cells(height, width)])
+    return (weights * neighbours).sum(0)
+
+
+def _neighbour_cells(height, width):
+    """(rows, columns, dy, dx) of the 3×3 cells around each pixel, as slices of a nearest-upsampled map
+    padded by 2 pixels (one cell) on every side."""
+    return [(slice(2 + 2 * dy, 2 + 2 * dy + height), slice(2 + 2 * dx, 2 + 2 * dx + width), dy, dx)
+            for dy in (-1, 0, 1) for dx in (-1, 0, 1)]
 
 
 def room_logit_bias_name(sharp_gate):

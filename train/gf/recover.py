@@ -14,7 +14,7 @@ import onnx
 import torch
 from onnx import numpy_helper
 
-from .model import GroupForwardMini
+from .model import GroupForwardMini, example_inputs, onnx_parity
 
 PARITY = 1e-4  # of each output's largest magnitude (at least 1), as export_recon.py checks
 
@@ -60,17 +60,7 @@ def check_parity(model, path):
     import onnxruntime as ort
 
     session = ort.InferenceSession(str(path), providers=['CPUExecutionProvider'])
-    generator = torch.Generator().manual_seed(0)
-    every = {'images': torch.rand(1, 2, 3, 96, 128, generator=generator),
-             'points': torch.randn(1, 2, 3, 96, 128, generator=generator) * 0.5,
-             'intrinsics': torch.tensor([[64.0, 0, 63.5], [0, 64.0, 47.5], [0, 0, 1]]).expand(1, 2, 3, 3).contiguous(),
-             'world_from_camera': torch.eye(4).repeat(1, 2, 1, 1)}
-    every['world_from_camera'][0, 1, 0, 3] = 0.1
-    feed = {name: every[name] for name in model.input_names()}
-    with torch.no_grad():
-        ours = model(**feed)
-    theirs = session.run(['depth', 'gaussians', 'embeddings'], {k: v.numpy() for k, v in feed.items()})
-    for name, a, b in zip(('depth', 'gaussians', 'embeddings'), ours, theirs):
-        worst = float(np.abs(a.numpy() - b).max()) / max(1.0, float(np.abs(b).max()))
-        if worst > PARITY:
-            raise RecoveryError(f'{path}: recovered {name} differs by {worst:.1e} of its scale')
+    feed = example_inputs(model.input_names(), 2, torch.Generator().manual_seed(0))
+    worst = onnx_parity(model, session, feed)
+    if worst > PARITY:
+        raise RecoveryError(f'{path}: the recovered outputs differ by {worst:.1e} of their scale')

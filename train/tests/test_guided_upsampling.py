@@ -10,7 +10,7 @@ from torch.nn import functional as F
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from export_recon import Contract  # noqa: E402
-from gf.model import GroupForwardMini, joint_bilateral_upsample  # noqa: E402
+from gf.model import GroupForwardMini, bilateral_weights, joint_bilateral_upsample  # noqa: E402
 from gf.recover import RecoveryError, recovered_model  # noqa: E402
 
 
@@ -27,7 +27,7 @@ def step_scene(height=8, width=16):
 def test_a_constant_stays_constant():
     half = torch.full((1, 4, 6, 8), 0.7)
     guide = torch.rand(1, 6, 12, 16)
-    out = joint_bilateral_upsample(half, guide, torch.tensor(0.05), torch.tensor(0.05))
+    out = joint_bilateral_upsample(half, bilateral_weights(guide, torch.tensor(0.05), torch.tensor(0.05)))
     assert out.shape == (1, 4, 12, 16)
     assert torch.allclose(out, torch.full_like(out, 0.7), atol=1e-6)
 
@@ -35,7 +35,7 @@ def test_a_constant_stays_constant():
 def test_guided_upsampling_keeps_a_step_where_bilinear_blurs_it():
     half, guide = step_scene()
     bilinear = F.interpolate(half, scale_factor=2.0, mode='bilinear', align_corners=False)
-    guided = joint_bilateral_upsample(half, guide, torch.tensor(1.0), torch.tensor(0.05))
+    guided = joint_bilateral_upsample(half, bilateral_weights(guide, torch.tensor(1.0), torch.tensor(0.05)))
     # The pixel just left of the step takes a quarter of the right cell bilinearly.
     assert bilinear[0, 0, 3, 7] == pytest.approx(0.25)
     assert guided[0, 0, 3, 7] < 1e-3
@@ -45,7 +45,7 @@ def test_guided_upsampling_keeps_a_step_where_bilinear_blurs_it():
 def test_tiny_kernels_stay_finite():
     half, guide = step_scene()
     guide = guide + 0.01 * torch.rand_like(guide)
-    out = joint_bilateral_upsample(half, guide, torch.tensor(1e-8), torch.tensor(1e-8))
+    out = joint_bilateral_upsample(half, bilateral_weights(guide, torch.tensor(1e-8), torch.tensor(1e-8)))
     assert torch.isfinite(out).all()
     # Every weight but the nearest guide's underflows: each pixel copies one neighbouring cell.
     assert ((out == 0.0) | (out == 1.0)).all()
