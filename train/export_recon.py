@@ -84,7 +84,9 @@ def checkpoint_provenance(args, model, summary, guided):
         losses += f"; dice + focal on unrendered assignment probabilities, weight {train_args['direct_assignment']:g}"
     if train_args.get('hard_push'):
         losses += '; push over violating pairs only'
-    if train_args.get('decouple'):
+    if train_args.get('stages', [1, 1, 1])[0::2] == [0, 0]:
+        losses += '; only the instance head trained (curriculum stage 2 alone), the depth path as it was'
+    elif train_args.get('decouple'):
         losses += '; the instance losses train the instance head alone (decoder and depth by depth losses)'
     head = 'instance head: 3D centre votes' if model.centre_votes else 'instance head: plain'
     if model.refine:
@@ -104,16 +106,21 @@ def checkpoint_provenance(args, model, summary, guided):
         head += f'; plane sweep over the views\' intrinsics and TF poses{sweep}'
     device = summary.get('device', 'cpu')
     origin = 'trained from scratch'
-    if train_args.get('init'):
+    init = Path(train_args['init']) if train_args.get('init') else None
+    if init and init.suffix == '.onnx':
+        # Fine-tuned from an exported model's recovered weights: that model's own training comes first.
+        origin = f"fine-tuned from an exported model ({training_provenance(init.with_suffix('.toml').read_text())})"
+    elif init:
         # A run that continued another one: name both, so its steps and minutes are not read as the whole.
-        first = json.loads((Path(train_args['init']).parent / 'summary.json').read_text())
+        first = json.loads((init.parent / 'summary.json').read_text())
         decoupled = ' with --decouple' if first['args'].get('decouple') else ''
         origin = (f"trained from scratch in two runs: {first['steps']} steps ({first['minutes']:.0f} min){decoupled}, "
                   f"then this run from their weights")
     trained_on = (f"{summary['threads']} CPU thread(s)" if device == 'cpu'
                   else f'a GPU ({device}; the steps are a 2-core CPU budget, see train/ in the README)')
     if guided:
-        head += f'; {guided_note(*guided, after_training=False, points=model.mode == "rgbd")}'
+        after_training = bool(args.guided) or not train_args.get('guided')
+        head += f'; {guided_note(*guided, after_training=after_training, points=model.mode == "rgbd")}'
     return (f"{origin} on groupforward-sim train split ({summary['train_windows']} windows x 4 views, 128x96), "
             f"checkpoint of step {best['step']} ({best['minutes']:.0f} min) of a {summary['steps']}-step, "
             f"{summary['minutes']:.0f}-min run on {trained_on}, picked by ARI on {best['windows']} val windows; {head}; "
@@ -145,9 +152,10 @@ def main():
         model = GroupForwardMini.from_state_dict(torch.load(args.model), args.mode)
     if args.room_bias:
         model.shift_room_logit(args.room_bias)
-    guided = args.guided
-    if guided:
-        model.enable_guided_upsampling(*guided)
+    if args.guided:
+        model.enable_guided_upsampling(*args.guided)
+    # A checkpoint trained with the upsampling (train_recon.py --guided) carries it in its state dict.
+    guided = tuple(model.instance_guide_sigmas.tolist()) if model.guided_upsampling else None
     model.eval()
     height, width = 96, 128
     generator = torch.Generator().manual_seed(0)

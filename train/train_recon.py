@@ -30,7 +30,8 @@ from gf.losses import (  # noqa: E402
     LAMBDA_DICE, LAMBDA_DIRECT, LAMBDA_FOCAL, LAMBDA_PULL, LAMBDA_PUSH, LAMBDA_RENDER, ROOM_VOTE, depth_loss,
     assignment_losses, direct_losses, rendered_losses, room_gate_loss, vote_loss)
 from gf.model import GroupForwardMini, parameter_count  # noqa: E402
-from eval_recon import evaluate  # noqa: E402
+from gf.recover import recovered_model  # noqa: E402
+from eval_recon import evaluate, guided_widths  # noqa: E402
 
 
 def stage_of(fraction, split):
@@ -45,6 +46,13 @@ def stage_of(fraction, split):
 def cpu_state(model):
     """Weights that load on any machine, whatever device trained them."""
     return {name: tensor.cpu() for name, tensor in model.state_dict().items()}
+
+
+def initial_weights(path, mode):
+    """The state dict `--init` names: a checkpoint, or the weights recovered from an exported model."""
+    if str(path).endswith('.onnx'):
+        return recovered_model(path, mode).state_dict()
+    return torch.load(path, map_location='cpu')
 
 
 def evaluate_on_cpu(model, val, selection):
@@ -119,8 +127,13 @@ def main():
                              'so grouping losses (the room gate\'s above all) cannot trade depth away; the rendered '
                              'losses still reach depth through their rasterization (use with --no-rendered)')
     parser.add_argument('--init', default=None,
-                        help='start from these weights (a train_recon.py model.pt of the same architecture) instead '
-                             'of a random draw; with --stages 0 0 1, a coupled stage 3 after a --decouple run')
+                        help='start from these weights (a train_recon.py model.pt, or an exported models/<name>.onnx '
+                             'recovered by gf.recover, of the same architecture) instead of a random draw; with '
+                             '--stages 0 0 1, a coupled stage 3 after a --decouple run')
+    parser.add_argument('--guided', metavar='SIGMA_POINTS,SIGMA_COLOUR', type=guided_widths, default=None,
+                        help='train with the instance head upsampled by joint bilateral upsampling guided by the '
+                             'input (GroupForwardMini.enable_guided_upsampling), so the losses see the upsampling '
+                             'the model ships with; default bilinear')
     parser.add_argument('--snapshot-every', type=int, default=0,
                         help='also keep the weights every N steps (snapshot_<step>.pt), for equal-step comparisons')
     parser.add_argument('--out', required=True)
@@ -146,7 +159,12 @@ def main():
                              centre_votes=False if args.no_votes else None, room_gate=args.room_gate > 0,
                              sharp_gate=args.sharp_gate, posed=args.posed, sweep_depth=args.sweep_depth > 0)
     if args.init:
-        model.load_state_dict(torch.load(args.init, map_location='cpu'))
+        state = initial_weights(args.init, args.mode)
+        if 'instance_guide_sigmas' in state:
+            model.enable_guided_upsampling(*state['instance_guide_sigmas'].tolist())
+        model.load_state_dict(state)
+    if args.guided:
+        model.enable_guided_upsampling(*args.guided)
     device = torch.device(args.device)
     model.to(device)
     print(f'GroupForward-mini ({args.mode}): {parameter_count(model) / 1e6:.2f} M parameters; '
