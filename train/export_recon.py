@@ -73,6 +73,31 @@ class Contract(torch.nn.Module):
         return self.model(**dict(zip(self.names, tensors)))
 
 
+def instance_head_only(train_args):
+    """Whether a run trained the instance head alone (curriculum stage 2 only)."""
+    return train_args.get('stages', [1, 1, 1])[0::2] == [0, 0]
+
+
+def run_origin(train_args):
+    """Where a run's starting weights came from: a random draw, an exported model, or earlier runs (each
+    named, so a continuation's steps and minutes are not read as the whole)."""
+    init = Path(train_args['init']) if train_args.get('init') else None
+    if init is None:
+        return 'trained from scratch'
+    if init.suffix == '.onnx':
+        # Recovered weights of an exported model: that model's own training comes first.
+        return f"fine-tuned from an exported model ({training_provenance(init.with_suffix('.toml').read_text())})"
+    first = json.loads((init.parent / 'summary.json').read_text())
+    how = ' with --decouple' if first['args'].get('decouple') else ''
+    if instance_head_only(first['args']):
+        how = ', the instance head alone'
+    if not first['args'].get('init'):
+        return (f"trained from scratch in two runs: {first['steps']} steps ({first['minutes']:.0f} min){how}, "
+                f"then this run from their weights")
+    return (f"{run_origin(first['args'])}; then {first['steps']} steps ({first['minutes']:.0f} min){how}; "
+            f"then this run from their weights")
+
+
 def checkpoint_provenance(args, model, summary, guided):
     """The provenance of a model exported from a training run's checkpoint, up to its benchmarks."""
     best = summary['best']
@@ -84,7 +109,7 @@ def checkpoint_provenance(args, model, summary, guided):
         losses += f"; dice + focal on unrendered assignment probabilities, weight {train_args['direct_assignment']:g}"
     if train_args.get('hard_push'):
         losses += '; push over violating pairs only'
-    if train_args.get('stages', [1, 1, 1])[0::2] == [0, 0]:
+    if instance_head_only(train_args):
         losses += '; only the instance head trained (curriculum stage 2 alone), the depth path as it was'
     elif train_args.get('decouple'):
         losses += '; the instance losses train the instance head alone (decoder and depth by depth losses)'
@@ -105,17 +130,7 @@ def checkpoint_provenance(args, model, summary, guided):
                  if model.sweep_depth else '')
         head += f'; plane sweep over the views\' intrinsics and TF poses{sweep}'
     device = summary.get('device', 'cpu')
-    origin = 'trained from scratch'
-    init = Path(train_args['init']) if train_args.get('init') else None
-    if init and init.suffix == '.onnx':
-        # Fine-tuned from an exported model's recovered weights: that model's own training comes first.
-        origin = f"fine-tuned from an exported model ({training_provenance(init.with_suffix('.toml').read_text())})"
-    elif init:
-        # A run that continued another one: name both, so its steps and minutes are not read as the whole.
-        first = json.loads((init.parent / 'summary.json').read_text())
-        decoupled = ' with --decouple' if first['args'].get('decouple') else ''
-        origin = (f"trained from scratch in two runs: {first['steps']} steps ({first['minutes']:.0f} min){decoupled}, "
-                  f"then this run from their weights")
+    origin = run_origin(train_args)
     trained_on = (f"{summary['threads']} CPU thread(s)" if device == 'cpu'
                   else f'a GPU ({device}; the steps are a 2-core CPU budget, see train/ in the README)')
     if guided:
