@@ -78,6 +78,17 @@ def instance_head_only(train_args):
     return train_args.get('stages', [1, 1, 1])[0::2] == [0, 0]
 
 
+def trained_guided(train_args):
+    """Whether a run trained with the guided upsampling: its own --guided, or carried in from the run it
+    continued (a recovered exported model never has it: gf.recover refuses a guided file)."""
+    if train_args.get('guided'):
+        return True
+    init = Path(train_args['init']) if train_args.get('init') else None
+    if init is None or init.suffix == '.onnx':
+        return False
+    return trained_guided(json.loads((init.parent / 'summary.json').read_text())['args'])
+
+
 def run_origin(train_args):
     """Where a run's starting weights came from: a random draw, an exported model, or earlier runs (each
     named, so a continuation's steps and minutes are not read as the whole)."""
@@ -134,7 +145,7 @@ def checkpoint_provenance(args, model, summary, guided):
     trained_on = (f"{summary['threads']} CPU thread(s)" if device == 'cpu'
                   else f'a GPU ({device}; the steps are a 2-core CPU budget, see train/ in the README)')
     if guided:
-        after_training = bool(args.guided) or not train_args.get('guided')
+        after_training = bool(args.guided) or not trained_guided(train_args)
         head += f'; {guided_note(*guided, after_training=after_training, points=model.mode == "rgbd")}'
     return (f"{origin} on groupforward-sim train split ({summary['train_windows']} windows x 4 views, 128x96), "
             f"checkpoint of step {best['step']} ({best['minutes']:.0f} min) of a {summary['steps']}-step, "

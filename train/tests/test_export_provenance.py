@@ -6,7 +6,7 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from export_recon import run_origin  # noqa: E402
+from export_recon import run_origin, trained_guided  # noqa: E402
 
 
 def write_run(folder, args, steps, minutes):
@@ -33,3 +33,10 @@ def test_a_continuation_of_a_run_from_scratch_names_both(tmp_path):
     first = write_run(tmp_path / 'first', {'decouple': True}, 5400, 90.0)
     assert run_origin({'init': first}) == ('trained from scratch in two runs: 5400 steps (90 min) with --decouple, '
                                            'then this run from their weights')
+
+
+def test_an_upsampling_carried_in_from_the_run_continued_counts_as_trained_with(tmp_path):
+    first = write_run(tmp_path / 'first', {'guided': [0.06, 0.05]}, 6000, 32.0)
+    assert trained_guided({'init': first})
+    assert not trained_guided({'init': str(tmp_path / 'shipped.onnx')})
+    assert not trained_guided({})
