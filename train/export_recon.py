@@ -15,6 +15,7 @@ of that model's provenance, so no --summary is needed.
 """
 
 import argparse
+import csv
 import json
 import re
 import sys
@@ -109,9 +110,22 @@ def run_origin(train_args):
             f"then this run from their weights")
 
 
+def checkpoint_choice(path, summary):
+    """(step, minutes, how it was picked) of the exported checkpoint: the run's model.pt (its best on the
+    selection windows) or one of its snapshots (snapshot_<step>.pt, its time from the run's log.csv)."""
+    match = re.fullmatch(r'snapshot_(\d+)\.pt', Path(path).name)
+    if not match:
+        best = summary['best']
+        return best['step'], best['minutes'], f"picked by ARI on {best['windows']} val windows"
+    step = int(match.group(1))
+    with open(Path(path).parent / 'log.csv', newline='') as log:
+        seconds = next(float(row['seconds']) for row in csv.DictReader(log) if int(row['step']) == step)
+    return step, seconds / 60, 'picked among its snapshots by ARI on the val_selection windows'
+
+
 def checkpoint_provenance(args, model, summary, guided):
     """The provenance of a model exported from a training run's checkpoint, up to its benchmarks."""
-    best = summary['best']
+    step, minutes, picked = checkpoint_choice(args.model, summary)
     losses = ('depth, photometric, direct and rendered instance losses' if summary.get('rendered_losses')
               else 'depth and direct instance losses only')
     train_args = summary['args']
@@ -148,8 +162,8 @@ def checkpoint_provenance(args, model, summary, guided):
         after_training = bool(args.guided) or not trained_guided(train_args)
         head += f'; {guided_note(*guided, after_training=after_training, points=model.mode == "rgbd")}'
     return (f"{origin} on groupforward-sim train split ({summary['train_windows']} windows x 4 views, 128x96), "
-            f"checkpoint of step {best['step']} ({best['minutes']:.0f} min) of a {summary['steps']}-step, "
-            f"{summary['minutes']:.0f}-min run on {trained_on}, picked by ARI on {best['windows']} val windows; {head}; "
+            f"checkpoint of step {step} ({minutes:.0f} min) of a {summary['steps']}-step, "
+            f"{summary['minutes']:.0f}-min run on {trained_on}, {picked}; {head}; "
             f"{losses}{'; pseudo instance labels' if train_args.get('pseudo_labels') else ''}")
 
 

@@ -6,7 +6,7 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from export_recon import run_origin, trained_guided  # noqa: E402
+from export_recon import checkpoint_choice, run_origin, trained_guided  # noqa: E402
 
 
 def write_run(folder, args, steps, minutes):
@@ -40,3 +40,11 @@ def test_an_upsampling_carried_in_from_the_run_continued_counts_as_trained_with(
     assert trained_guided({'init': first})
     assert not trained_guided({'init': str(tmp_path / 'shipped.onnx')})
     assert not trained_guided({})
+
+
+def test_a_snapshot_is_named_with_its_own_step_and_time(tmp_path):
+    (tmp_path / 'log.csv').write_text('step,stage,seconds,loss\n1,2,0.0,1.0\n2000,2,600.0,0.5\n4000,2,1200.0,0.4\n')
+    summary = {'best': {'step': 4000, 'minutes': 20.0, 'windows': 24}}
+    assert checkpoint_choice(str(tmp_path / 'snapshot_2000.pt'), summary) == (
+        2000, 10.0, 'picked among its snapshots by ARI on the val_selection windows')
+    assert checkpoint_choice(str(tmp_path / 'model.pt'), summary) == (4000, 20.0, 'picked by ARI on 24 val windows')
