@@ -8,6 +8,9 @@ Usage (from the repository root, after `make train-setup` and writing datasets w
   train/.venv/bin/python train/train_recon.py --train data/train --val data/val --mode rgbd \\
       --minutes 40 --out train/runs/rgbd
 
+Fine-tuning a shipped model's instance head with the upsampling it ships with, e.g. `--init
+models/<name>.onnx --guided 0.06,0.05 --stages 0 1 0 --decouple` (README, Training).
+
 Writes <out>/model.pt (best val ARI), <out>/log.csv (step, stage, losses, seconds) and
 <out>/summary.json. CPU is enough (threads: --threads, default 2); `--device cuda` runs the same recipe
 (steps, batch, schedule) on a GPU, faster, with validation still on the CPU.
