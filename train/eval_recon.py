@@ -52,8 +52,8 @@ from sklearn.metrics import adjusted_rand_score
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from gf.data import SimDataset  # noqa: E402
-from gf.model import GroupForwardMini, batch_inputs  # noqa: E402
-from gf.recover import recovered_model  # noqa: E402
+from gf.model import batch_inputs  # noqa: E402
+from gf.recover import model_from_file  # noqa: E402
 
 MAX_CLUSTER_POINTS = 20_000
 # min_cluster_size, min_samples, noise distance, merge distance: chosen together on the 24 selection
@@ -276,12 +276,9 @@ def load_model(path, mode, threads, room_bias=0.0, guided=None):
     its instance head upsampled by joint bilateral upsampling with `guided` = (σ_points, σ_colour);
     or an exported model (.onnx): scored as it is, or with either change on its recovered weights
     (gf.recover)."""
-    if str(path).endswith('.onnx'):
-        if not room_bias and guided is None:
-            return OnnxModel(path, threads)
-        model = recovered_model(path, mode)
-    else:
-        model = GroupForwardMini.from_state_dict(torch.load(path), mode)
+    if str(path).endswith('.onnx') and not room_bias and guided is None:
+        return OnnxModel(path, threads)
+    model = model_from_file(path, mode)
     if room_bias:
         model.shift_room_logit(room_bias)
     if guided is not None:

@@ -26,8 +26,8 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from gf.data import POINTS_SCALE  # noqa: E402
-from gf.model import GroupForwardMini, example_inputs, onnx_parity, parameter_count  # noqa: E402
-from gf.recover import recovered_model  # noqa: E402
+from gf.model import example_inputs, onnx_parity, parameter_count  # noqa: E402
+from gf.recover import model_from_file  # noqa: E402
 from eval_recon import guided_widths  # noqa: E402
 
 MODELS = Path(__file__).resolve().parents[1] / 'models'
@@ -79,35 +79,42 @@ def instance_head_only(train_args):
     return train_args.get('stages', [1, 1, 1])[0::2] == [0, 0]
 
 
-def trained_guided(train_args):
-    """Whether a run trained with the guided upsampling: its own --guided, or carried in from the run it
-    continued (a recovered exported model never has it: gf.recover refuses a guided file)."""
-    if train_args.get('guided'):
-        return True
+def earlier_runs(train_args):
+    """The runs a run continued (--init), nearest first, as their summaries, and the exported model the
+    first of them started from (its .onnx path; None for a random draw)."""
+    runs = []
     init = Path(train_args['init']) if train_args.get('init') else None
-    if init is None or init.suffix == '.onnx':
-        return False
-    return trained_guided(json.loads((init.parent / 'summary.json').read_text())['args'])
+    while init is not None and init.suffix != '.onnx':
+        runs.append(json.loads((init.parent / 'summary.json').read_text()))
+        init = Path(runs[-1]['args']['init']) if runs[-1]['args'].get('init') else None
+    return runs, init
+
+
+def trained_guided(train_args):
+    """Whether a run trained with the guided upsampling: its own --guided, or carried in from a run it
+    continued (a recovered exported model never has it: gf.recover refuses a guided file)."""
+    runs, _ = earlier_runs(train_args)
+    return any(args.get('guided') for args in [train_args] + [run['args'] for run in runs])
 
 
 def run_origin(train_args):
     """Where a run's starting weights came from: a random draw, an exported model, or earlier runs (each
     named, so a continuation's steps and minutes are not read as the whole)."""
-    init = Path(train_args['init']) if train_args.get('init') else None
-    if init is None:
-        return 'trained from scratch'
-    if init.suffix == '.onnx':
+    runs, exported = earlier_runs(train_args)
+    origin = None
+    if exported is not None:
         # Recovered weights of an exported model: that model's own training comes first.
-        return f"fine-tuned from an exported model ({training_provenance(init.with_suffix('.toml').read_text())})"
-    first = json.loads((init.parent / 'summary.json').read_text())
-    how = ' with --decouple' if first['args'].get('decouple') else ''
-    if instance_head_only(first['args']):
-        how = ', the instance head alone'
-    if not first['args'].get('init'):
-        return (f"trained from scratch in two runs: {first['steps']} steps ({first['minutes']:.0f} min){how}, "
-                f"then this run from their weights")
-    return (f"{run_origin(first['args'])}; then {first['steps']} steps ({first['minutes']:.0f} min){how}; "
-            f"then this run from their weights")
+        origin = f"fine-tuned from an exported model ({training_provenance(exported.with_suffix('.toml').read_text())})"
+    for run in reversed(runs):
+        how = ' with --decouple' if run['args'].get('decouple') else ''
+        if instance_head_only(run['args']):
+            how = ', the instance head alone'
+        if origin is None:
+            origin = (f"trained from scratch in two runs: {run['steps']} steps ({run['minutes']:.0f} min){how}, "
+                      f"then this run from their weights")
+        else:
+            origin += f"; then {run['steps']} steps ({run['minutes']:.0f} min){how}; then this run from their weights"
+    return origin or 'trained from scratch'
 
 
 def checkpoint_choice(path, summary):
@@ -187,9 +194,7 @@ def main():
     if exported:
         # Read before the export below may overwrite the same files.
         earlier = training_provenance(Path(args.model).with_suffix('.toml').read_text())
-        model = recovered_model(args.model, args.mode)
-    else:
-        model = GroupForwardMini.from_state_dict(torch.load(args.model), args.mode)
+    model = model_from_file(args.model, args.mode)
     if args.room_bias:
         model.shift_room_logit(args.room_bias)
     if args.guided:

@@ -33,7 +33,7 @@ from gf.losses import (  # noqa: E402
     LAMBDA_DICE, LAMBDA_DIRECT, LAMBDA_FOCAL, LAMBDA_PULL, LAMBDA_PUSH, LAMBDA_RENDER, ROOM_VOTE, depth_loss,
     assignment_losses, direct_losses, rendered_losses, room_gate_loss, vote_loss)
 from gf.model import GroupForwardMini, parameter_count  # noqa: E402
-from gf.recover import recovered_model  # noqa: E402
+from gf.recover import model_from_file  # noqa: E402
 from eval_recon import evaluate, guided_widths  # noqa: E402
 
 
@@ -49,13 +49,6 @@ def stage_of(fraction, split):
 def cpu_state(model):
     """Weights that load on any machine, whatever device trained them."""
     return {name: tensor.cpu() for name, tensor in model.state_dict().items()}
-
-
-def initial_weights(path, mode):
-    """The state dict `--init` names: a checkpoint, or the weights recovered from an exported model."""
-    if str(path).endswith('.onnx'):
-        return recovered_model(path, mode).state_dict()
-    return torch.load(path, map_location='cpu')
 
 
 def evaluate_on_cpu(model, val, selection):
@@ -162,7 +155,8 @@ def main():
                              centre_votes=False if args.no_votes else None, room_gate=args.room_gate > 0,
                              sharp_gate=args.sharp_gate, posed=args.posed, sweep_depth=args.sweep_depth > 0)
     if args.init:
-        state = initial_weights(args.init, args.mode)
+        # Loaded into the model the flags built, so an architecture that differs fails loudly.
+        state = model_from_file(args.init, args.mode).state_dict()
         if 'instance_guide_sigmas' in state:
             model.enable_guided_upsampling(*state['instance_guide_sigmas'].tolist())
         model.load_state_dict(state)

@@ -1,6 +1,6 @@
 """A checkpoint recovered from an exported GroupForward-mini (models/<name>.onnx), for a shipped
 model whose training run is gone: to score it with an inference-time change (eval_recon.py
-`--guided`) or export it again with one (export_recon.py).
+`--guided`), export it again with one (export_recon.py) or fine-tune it (train_recon.py --init).
 
 The legacy exporter keeps most parameters as initializers named `model.<parameter>`, but renames the
 GroupNorm affines (`onnx::Mul_*` / `onnx::Add_*`, shaped [C,1,1]) and the Linear weights
@@ -53,6 +53,14 @@ def recovered_model(path, mode):
     model.eval()
     check_parity(model, path)
     return model
+
+
+def model_from_file(path, mode):
+    """GroupForwardMini with the weights of a train_recon.py checkpoint (.pt) or of an exported model
+    (.onnx, recovered as above)."""
+    if str(path).endswith('.onnx'):
+        return recovered_model(path, mode)
+    return GroupForwardMini.from_state_dict(torch.load(path, map_location='cpu'), mode)
 
 
 def check_parity(model, path):
