@@ -40,6 +40,7 @@ when the global scale is right). Training picks its checkpoint on the last 24 va
 """
 
 import argparse
+import csv
 import json
 import sys
 from pathlib import Path
@@ -170,9 +171,11 @@ def objects_found(truth, labels, min_pixels=MIN_OBJECT_PIXELS):
 
 
 @torch.no_grad()
-def evaluate(model, dataset, indices=None, grouping=GROUPING, swap_poses=False):
+def evaluate(model, dataset, indices=None, grouping=GROUPING, swap_poses=False, per_window=None):
     """The metrics above over the windows `indices`; `swap_poses` gives every view the previous view's pose
-    (a posed model that uses its poses should get worse)."""
+    (a posed model that uses its poses should get worse). A list `per_window` receives one dict per
+    window (scene, ari, oracle_ari, room_kept, abs_rel): where a model fails, and train_recon.py
+    --window-weights' input."""
     model.eval()
     aris, raw_aris, abs_rel, delta, pair_aris, clusters, instances = [], [], [], [], [], [], []
     oracle_aris, edge, inner, found = [], np.zeros(2, int), np.zeros(2, int), np.zeros(4, int)
@@ -230,6 +233,9 @@ def evaluate(model, dataset, indices=None, grouping=GROUPING, swap_poses=False):
         scale = (target[valid] / depth[0][valid]).median()
         abs_rel_scaled.append(((depth[0][valid] * scale - target[valid]).abs() / target[valid]).mean().item())
         delta.append((torch.maximum(ratio, 1 / ratio) < 1.25).float().mean().item())
+        if per_window is not None:
+            per_window.append({'scene': dataset.scenes[i], 'ari': aris[-1], 'oracle_ari': oracle,
+                               'room_kept': float(room_kept[-1]), 'abs_rel': abs_rel[-1]})
     return {'ari': float(np.mean(aris)), 'ari_hdbscan': float(np.mean(raw_aris)),
             'clusters': float(np.mean(clusters)), 'instances': float(np.mean(instances)),
             'pairs': len(pair_aris), 'pair_ari': float(np.mean(pair_aris)) if pair_aris else None,
@@ -310,6 +316,9 @@ def main():
                              '(GroupForwardMini.enable_guided_upsampling; export_recon.py --guided bakes it in)')
     parser.add_argument('--grouping', default=','.join(map(str, GROUPING)),
                         help='min_cluster_size,min_samples,noise_distance,merge_distance')
+    parser.add_argument('--per-window', metavar='CSV',
+                        help='also write one row per window (scene, ari, oracle_ari, room_kept, abs_rel); any '
+                             'split, train included (train_recon.py --window-weights reads it)')
     parser.add_argument('--swap-poses', action='store_true',
                         help='a posed RGB model: give every view the previous view\'s pose (does it use them?)')
     args = parser.parse_args()
@@ -319,7 +328,13 @@ def main():
     model = load_model(args.model, args.mode, args.threads, args.room_bias, args.guided)
     dataset = SimDataset(args.val, args.mode)
     end = len(dataset) if args.windows is None else min(len(dataset), args.first + args.windows)
-    print(json.dumps(evaluate(model, dataset, range(args.first, end), grouping, args.swap_poses)))
+    rows = [] if args.per_window else None
+    print(json.dumps(evaluate(model, dataset, range(args.first, end), grouping, args.swap_poses, rows)))
+    if rows is not None:
+        with open(args.per_window, 'w', newline='') as f:
+            writer = csv.DictWriter(f, fieldnames=list(rows[0]) if rows else ['scene'])
+            writer.writeheader()
+            writer.writerows(rows)
 
 
 if __name__ == '__main__':

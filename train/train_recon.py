@@ -46,6 +46,25 @@ def stage_of(fraction, split):
     return 3
 
 
+def window_weights(path, scenes, hard_weight):
+    """Sampling weights [len(scenes)] from eval_recon.py --per-window rows: 1 + hard_weight·(1 − ARI), so the
+    windows the model groups worst (large objects filling a view, which it half gives to the room) come
+    up more often without the easy ones vanishing. Every scene needs a row."""
+    with open(path, newline='') as f:
+        ari = {row['scene']: float(row['ari']) for row in csv.DictReader(f)}
+    missing = [scene for scene in scenes if scene not in ari]
+    if missing:
+        raise ValueError(f'{path} has no row for {len(missing)} train windows (first: {missing[0]}); score the '
+                         'whole train split with eval_recon.py --per-window')
+    return torch.tensor([1.0 + hard_weight * (1.0 - ari[scene]) for scene in scenes], dtype=torch.float64)
+
+
+def hard_share(weights):
+    """The share of the draws that goes to the tenth of the windows with the largest weights."""
+    top = weights.sort(descending=True).values[:max(1, len(weights) // 10)]
+    return float(top.sum() / weights.sum())
+
+
 def cpu_state(model):
     """Weights that load on any machine, whatever device trained them."""
     return {name: tensor.cpu() for name, tensor in model.state_dict().items()}
@@ -130,6 +149,11 @@ def main():
                         help='train with the instance head upsampled by joint bilateral upsampling guided by the '
                              'input (GroupForwardMini.enable_guided_upsampling), so the losses see the upsampling '
                              'the model ships with; default bilinear')
+    parser.add_argument('--window-weights', metavar='CSV', default=None,
+                        help='draw train windows by difficulty instead of uniformly: eval_recon.py --per-window '
+                             'rows of the train split, scored by the model being fine-tuned (window_weights)')
+    parser.add_argument('--hard-weight', type=float, default=10.0,
+                        help='with --window-weights: window drawn with probability ∝ 1 + this × (1 − its ARI)')
     parser.add_argument('--snapshot-every', type=int, default=0,
                         help='also keep the weights every N steps (snapshot_<step>.pt), for equal-step comparisons')
     parser.add_argument('--out', required=True)
@@ -166,8 +190,14 @@ def main():
     model.to(device)
     print(f'GroupForward-mini ({args.mode}): {parameter_count(model) / 1e6:.2f} M parameters; '
           f'{len(train)} train windows, {len(val)} val windows')
-    loader = torch.utils.data.DataLoader(train, batch_size=args.batch, shuffle=True, drop_last=True,
-                                         num_workers=0)
+    sampler = None
+    if args.window_weights:
+        weights = window_weights(args.window_weights, train.scenes, args.hard_weight)
+        sampler = torch.utils.data.WeightedRandomSampler(weights, len(train), replacement=True,
+                                                         generator=torch.Generator().manual_seed(args.seed))
+        print(f'windows drawn by difficulty: the hardest tenth is {hard_share(weights):.0%} of the draws')
+    loader = torch.utils.data.DataLoader(train, batch_size=args.batch, shuffle=sampler is None, sampler=sampler,
+                                         drop_last=True, num_workers=0)
     optimizers = {
         1: torch.optim.AdamW(model.reconstruction_parameters(), lr=args.lr, weight_decay=1e-4),
         2: torch.optim.AdamW(model.instance_parameters(), lr=args.lr, weight_decay=1e-4),
