@@ -57,6 +57,7 @@ train-data: build
 	./target/debug/groupforward sim dataset --split train --samples 2000 --out train/data/train
 	./target/debug/groupforward sim dataset --split val --samples 100 --out train/data/val
 	./target/debug/groupforward sim dataset --split val --samples 300 --first-index 100 --out train/data/val_selection
+	./target/debug/groupforward sim dataset --split val --samples 400 --first-index 400 --out train/data/val_test
 
 # Checks of the training code's geometry (CPU, seconds); like training, not part of CI (torch is ~3 GB).
 train-test: train-setup

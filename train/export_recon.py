@@ -41,8 +41,8 @@ def room_shift_note(bias):
 def benchmarks_section(report, size, parameters):
     """The manifest's [benchmarks] table: `report` (eval_recon.py JSON), the ONNX file's size in bytes."""
     section = '\n[benchmarks]\n# train/eval_recon.py on the val windows held out from checkpoint selection.\n'
-    for key in ('ari', 'ari_hdbscan', 'pair_ari', 'pairs', 'clusters', 'instances', 'found', 'in_room', 'objects',
-                'oracle_ari', 'abs_rel', 'delta1', 'windows'):
+    for key in ('ari', 'ari_se', 'ari_hdbscan', 'pair_ari', 'pairs', 'clusters', 'instances', 'found', 'in_room',
+                'objects', 'oracle_ari', 'abs_rel', 'delta1', 'windows'):
         if report.get(key) is not None:
             section += f'val_{key} = {float(report[key]):.4f}\n'
     return section + f'size_mb = {size / 1e6:.2f}\nparameters_m = {parameters / 1e6:.2f}\n'
