@@ -108,12 +108,34 @@ def text_tables(dataset_json):
     return names, encoder.embed(names), encoder.embed(descriptions), encoder.embed(synonyms)
 
 
+class OnnxSemantic:
+    """The exported model (models/semantic-mini.onnx, one image per call) behind SemanticMini's call on a
+    window's views, so the shipped file is scored by the same code as a checkpoint."""
+
+    def __init__(self, path, threads):
+        import onnxruntime as ort
+
+        options = ort.SessionOptions()
+        options.intra_op_num_threads = threads
+        self.session = ort.InferenceSession(str(path), options, providers=['CPUExecutionProvider'])
+
+    def eval(self):
+        return self
+
+    def __call__(self, images):
+        return torch.cat([torch.from_numpy(self.session.run(['features'], {'image': view[None].numpy()})[0])
+                          for view in images])
+
+
 def report(args):
     torch.set_num_threads(args.threads)
     val = SimDataset(args.val, 'rgb')
     names, names_text, _, synonyms_text = text_tables(Path(args.val) / 'dataset.json')
-    model = SemanticMini()
-    model.load_state_dict(torch.load(args.report))
+    if str(args.report).endswith('.onnx'):
+        model = OnnxSemantic(args.report, args.threads)
+    else:
+        model = SemanticMini()
+        model.load_state_dict(torch.load(args.report))
     held_out = range(0, max(0, len(val) - args.val_windows))
     print(json.dumps(evaluate(model, val, names, names_text, synonyms_text, held_out)))
 
@@ -137,7 +159,8 @@ def main():
                         help='class weights are (median frequency / frequency)^power: 0 = none, 1 = full balance')
     parser.add_argument('--out', default=None)
     parser.add_argument('--report', default=None, metavar='MODEL',
-                        help='only score MODEL (model.pt) on the val windows held out from selection, print JSON')
+                        help='only score MODEL (model.pt, or the exported .onnx) on the val windows held out from '
+                             'selection (--val-windows 0: all of them, e.g. val_test), print JSON')
     args = parser.parse_args()
     if args.report:
         report(args)
