@@ -54,7 +54,7 @@ from sklearn.metrics import adjusted_rand_score
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from gf.data import SimDataset  # noqa: E402
-from gf.model import batch_inputs  # noqa: E402
+from gf.model import batch_inputs, cpu_session  # noqa: E402
 from gf.recover import model_from_file  # noqa: E402
 
 MAX_CLUSTER_POINTS = 20_000
@@ -262,12 +262,7 @@ class OnnxModel:
 
     def __init__(self, model, threads=1):
         """`model`: a path, or a serialized ONNX model (bytes)."""
-        import onnxruntime as ort
-
-        options = ort.SessionOptions()
-        options.intra_op_num_threads = threads
-        model = model if isinstance(model, bytes) else str(model)
-        self.session = ort.InferenceSession(model, options, providers=['CPUExecutionProvider'])
+        self.session = cpu_session(model, threads)
 
     def eval(self):
         return self

@@ -26,7 +26,7 @@ from torch.nn import functional as F
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from gf.data import SimDataset  # noqa: E402
-from gf.model import parameter_count  # noqa: E402
+from gf.model import cpu_session, parameter_count  # noqa: E402
 from gf.semantic import SemanticMini, TextEncoder, label_set  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -113,11 +113,7 @@ class OnnxSemantic:
     window's views, so the shipped file is scored by the same code as a checkpoint."""
 
     def __init__(self, path, threads):
-        import onnxruntime as ort
-
-        options = ort.SessionOptions()
-        options.intra_op_num_threads = threads
-        self.session = ort.InferenceSession(str(path), options, providers=['CPUExecutionProvider'])
+        self.session = cpu_session(path, threads)
 
     def eval(self):
         return self

@@ -137,6 +137,18 @@ def example_inputs(names, views, generator, height=96, width=128):
     return {name: every[name] for name in names}
 
 
+def cpu_session(model, threads=None):
+    """An onnxruntime CPU session of an exported model (a path, or serialized bytes), on `threads`
+    intra-op threads (onnxruntime's default when None)."""
+    import onnxruntime as ort
+
+    options = ort.SessionOptions()
+    if threads is not None:
+        options.intra_op_num_threads = threads
+    model = model if isinstance(model, bytes) else str(model)
+    return ort.InferenceSession(model, options, providers=['CPUExecutionProvider'])
+
+
 def onnx_parity(model, session, feed):
     """The largest difference between `model`'s outputs and an onnxruntime `session`'s on `feed`, as a
     share of each output's largest magnitude (at least 1): float32 rounding grows with the values

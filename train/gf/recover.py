@@ -14,7 +14,7 @@ import onnx
 import torch
 from onnx import numpy_helper
 
-from .model import GroupForwardMini, example_inputs, onnx_parity
+from .model import GroupForwardMini, cpu_session, example_inputs, onnx_parity
 
 PARITY = 1e-4  # of each output's largest magnitude (at least 1), as export_recon.py checks
 
@@ -65,9 +65,7 @@ def model_from_file(path, mode):
 
 def check_parity(model, path):
     """Raise RecoveryError unless `model` reproduces the ONNX file's outputs on random inputs."""
-    import onnxruntime as ort
-
-    session = ort.InferenceSession(str(path), providers=['CPUExecutionProvider'])
+    session = cpu_session(path)
     feed = example_inputs(model.input_names(), 2, torch.Generator().manual_seed(0))
     worst = onnx_parity(model, session, feed)
     if worst > PARITY:
