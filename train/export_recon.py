@@ -145,6 +145,8 @@ def checkpoint_provenance(args, model, summary, guided):
         losses += '; only the instance head trained (curriculum stage 2 alone), the depth path as it was'
     elif train_args.get('decouple'):
         losses += '; the instance losses train the instance head alone (decoder and depth by depth losses)'
+    if train_args.get('polish'):
+        losses += f"; the last {train_args['polish']:.0%} of the budget trained the instance head alone (stage 4)"
     head = 'instance head: 3D centre votes' if model.centre_votes else 'instance head: plain'
     if model.refine:
         head += ' + full-resolution refinement'

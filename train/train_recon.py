@@ -1,6 +1,7 @@
 """Train GroupForward-mini on simulator datasets with the three-stage curriculum of DESIGN §5.3.
 
-  (1) reconstruction only, instance head frozen;  (2) instance head only;  (3) everything jointly.
+  (1) reconstruction only, instance head frozen;  (2) instance head only;  (3) everything jointly;
+  and, with --polish, (4) the instance head alone again for the last share of the budget.
 
 Usage (from the repository root, after `make train-setup` and writing datasets with
 `groupforward sim dataset --split train ...` / `--split val ...`):
@@ -37,8 +38,11 @@ from gf.recover import model_from_file  # noqa: E402
 from eval_recon import evaluate, guided_widths  # noqa: E402
 
 
-def stage_of(fraction, split):
-    """Curriculum stage for the share of the budget used."""
+def stage_of(fraction, split, polish=0.0):
+    """Curriculum stage for the share of the budget used: 1, 2, 3 by `split`, then 4 (the instance head
+    alone again, a polish) for the last `polish` of the budget."""
+    if fraction >= 1.0 - polish:
+        return 4
     if fraction < split[0]:
         return 1
     if fraction < split[0] + split[1]:
@@ -87,6 +91,10 @@ def main():
                              'count), for comparisons that must not depend on machine load')
     parser.add_argument('--stages', type=float, nargs=3, default=[0.15, 0.25, 0.6],
                         help='budget shares of the three curriculum stages')
+    parser.add_argument('--polish', type=float, default=0.0,
+                        help='the last share of the budget trains the instance head alone again (stage 4, its '
+                             'own optimizer, at the cosine schedule\'s low end), as a fine-tune of the joint '
+                             'model would; the --stages shares then split the rest')
     parser.add_argument('--batch', type=int, default=2)
     parser.add_argument('--lr', type=float, default=2e-3)
     parser.add_argument('--schedule', choices=['cosine', 'constant'], default='cosine',
@@ -202,6 +210,7 @@ def main():
         1: torch.optim.AdamW(model.reconstruction_parameters(), lr=args.lr, weight_decay=1e-4),
         2: torch.optim.AdamW(model.instance_parameters(), lr=args.lr, weight_decay=1e-4),
         3: torch.optim.AdamW(model.parameters(), lr=args.lr / 2, weight_decay=1e-4),
+        4: torch.optim.AdamW(model.instance_parameters(), lr=args.lr, weight_decay=1e-4),
     }
     budget = args.minutes * 60.0
     started = time.perf_counter()
@@ -224,10 +233,12 @@ def main():
                 if progress >= 1.0:
                     done = True
                     break
-                stage = stage_of(progress, args.stages)
+                stage = stage_of(progress, [share * (1.0 - args.polish) for share in args.stages], args.polish)
                 model.train()
+                # Stages 2 and 4 step the instance head alone: a backward pass into the rest is wasted work.
+                head_only = stage in (2, 4)
                 depth, gaussians, embeddings, votes, room_logits, sweep_depth = model.forward_training(
-                    **model.inputs(batch), instance_gradient=not args.decouple)
+                    **model.inputs(batch), instance_gradient=not (args.decouple or head_only))
                 l_depth = depth_loss(depth, batch['depth'])
                 if sweep_depth is not None:
                     # Trains the matching features directly (nearest-neighbour half-resolution truth).
@@ -254,7 +265,7 @@ def main():
                                 + LAMBDA_PUSH * r_push)
                 if stage == 1:
                     loss = l_depth + l_photo
-                elif stage == 2:
+                elif head_only:
                     loss = LAMBDA_DIRECT * l_direct + LAMBDA_RENDER * l_render
                 else:
                     loss = l_depth + l_photo + LAMBDA_DIRECT * l_direct + LAMBDA_RENDER * l_render
@@ -264,7 +275,9 @@ def main():
                     factor = 0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * progress))
                     for group in optimizer.param_groups:
                         group['lr'] = args.lr * factor * (0.5 if stage == 3 else 1.0)
-                optimizer.zero_grad()
+                # All gradients, not only this stage's parameters': stale ones from an earlier stage would
+                # otherwise count in the clipping norm.
+                model.zero_grad(set_to_none=True)
                 loss.backward()
                 torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
                 optimizer.step()

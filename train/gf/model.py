@@ -65,6 +65,13 @@ SWEEP_FAR = 10.0
 SWEEP_FEATURES = 16
 
 
+def unit_vectors(x, dim=1, eps=1e-12):
+    """x / max(‖x‖, eps) along `dim`, as F.normalize, from a sum of squares: PyTorch's CPU norm over a
+    non-innermost dimension is ~40× slower (18 ms against 0.4 ms for a batch's [8,8,96,128] embeddings),
+    which made the norms an eighth of a training step."""
+    return x / (x * x).sum(dim, keepdim=True).clamp_min(eps * eps).sqrt()
+
+
 def sweep_inverse_depths():
     """The plane sweep's planes [D] as inverse depths (1/m), nearest first."""
     return torch.linspace(1.0 / SWEEP_NEAR, 1.0 / SWEEP_FAR, SWEEP_PLANES)
@@ -375,7 +382,7 @@ class GroupForwardMini(nn.Module):
         if self.posed:
             # Triangulation the attention at 1/16 resolution cannot do: where each pixel's features
             # match the other views' along its ray, from the TF poses.
-            matching = F.normalize(self.sweep_features(e1), dim=1)
+            matching = unit_vectors(self.sweep_features(e1))
             cost = plane_sweep_cost(matching.reshape(b, v, *matching.shape[1:]), intrinsics, world_from_camera,
                                     images.shape[-2], images.shape[-1]).flatten(0, 1)
             skip.append(cost)
@@ -395,7 +402,7 @@ class GroupForwardMini(nn.Module):
         opacity = torch.sigmoid(raw[:, 0:1])
         scale = F.softplus(raw[:, 1:4]) + 0.1
         rotation = raw[:, 4:8] + torch.tensor([0.0, 0.0, 0.0, 1.0]).reshape(1, 4, 1, 1)
-        rotation = rotation / rotation.norm(dim=1, keepdim=True).clamp_min(1e-6)
+        rotation = unit_vectors(rotation, eps=1e-6)
         residual = 0.2 * torch.tanh(raw[:, 8:11])
         gaussians = torch.cat([opacity, scale, rotation, residual], dim=1)
         down = lambda t: F.avg_pool2d(t, 2)  # noqa: E731
@@ -423,7 +430,7 @@ class GroupForwardMini(nn.Module):
         if self.refine:
             embeddings = embeddings + self.instance_refine(torch.cat([d0, embeddings], dim=1))
         if self.room_gate:
-            unit = embeddings / embeddings.norm(dim=1, keepdim=True).clamp_min(1e-6)
+            unit = unit_vectors(embeddings, eps=1e-6)
             room = self.instance_room_vector / self.instance_room_vector.norm().clamp_min(1e-6)
             gate = torch.sigmoid(room_logit)
             embeddings = gate * room.reshape(1, -1, 1, 1) + (1 - gate) * unit
