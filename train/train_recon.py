@@ -166,6 +166,8 @@ def main():
                         help='also keep the weights every N steps (snapshot_<step>.pt), for equal-step comparisons')
     parser.add_argument('--out', required=True)
     args = parser.parse_args()
+    if not 0.0 <= args.polish < 1.0:
+        parser.error('--polish is a share of the budget: at least 0 and below 1')
     if args.room_vote and args.vote_weight <= 0:
         parser.error('--room-vote needs --vote-weight > 0 (without it the vote loss is off)')
     if args.sweep_depth > 0 and not args.posed:
