@@ -39,13 +39,14 @@ from eval_recon import evaluate, guided_widths  # noqa: E402
 
 
 def stage_of(fraction, split, polish=0.0):
-    """Curriculum stage for the share of the budget used: 1, 2, 3 by `split`, then 4 (the instance head
-    alone again, a polish) for the last `polish` of the budget."""
+    """Curriculum stage for the share of the budget used: 1, 2, 3 by the shares `split` of the budget
+    before the polish, then 4 (the instance head alone again) for the last `polish` of the budget."""
     if fraction >= 1.0 - polish:
         return 4
-    if fraction < split[0]:
+    first, second = (share * (1.0 - polish) for share in split[:2])
+    if fraction < first:
         return 1
-    if fraction < split[0] + split[1]:
+    if fraction < first + second:
         return 2
     return 3
 
@@ -235,7 +236,7 @@ def main():
                 if progress >= 1.0:
                     done = True
                     break
-                stage = stage_of(progress, [share * (1.0 - args.polish) for share in args.stages], args.polish)
+                stage = stage_of(progress, args.stages, args.polish)
                 model.train()
                 # Stages 2 and 4 step the instance head alone: a backward pass into the rest is wasted work.
                 head_only = stage in (2, 4)

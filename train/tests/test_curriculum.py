@@ -13,7 +13,7 @@ from train_recon import stage_of  # noqa: E402
 
 
 def stages(split, polish=0.0, steps=100):
-    return [stage_of(step / steps, [share * (1.0 - polish) for share in split], polish) for step in range(steps)]
+    return [stage_of(step / steps, split, polish) for step in range(steps)]
 
 
 def test_three_stages_in_order_by_their_shares():
