@@ -147,6 +147,8 @@ def checkpoint_provenance(args, model, summary, guided):
         losses += '; the instance losses train the instance head alone (decoder and depth by depth losses)'
     if train_args.get('polish'):
         losses += f"; the last {train_args['polish']:.0%} of the budget trained the instance head alone (stage 4)"
+    if train_args.get('bf16'):
+        losses += '; forward passes in bfloat16 autocast (float32 weights and losses)'
     head = 'instance head: 3D centre votes' if model.centre_votes else 'instance head: plain'
     if model.refine:
         head += ' + full-resolution refinement'

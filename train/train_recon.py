@@ -75,6 +75,11 @@ def cpu_state(model):
     return {name: tensor.cpu() for name, tensor in model.state_dict().items()}
 
 
+def float32(outputs):
+    """The model's outputs as float32 (None stays None), so the losses never run in bfloat16."""
+    return tuple(None if output is None else output.float() for output in outputs)
+
+
 def evaluate_on_cpu(model, val, selection):
     """Validation as the node groups (HDBSCAN and numpy run on the CPU), on a copy of the model."""
     with torch.device('cpu'):
@@ -165,6 +170,9 @@ def main():
                         help='with --window-weights: window drawn with probability ∝ 1 + this × (1 − its ARI)')
     parser.add_argument('--snapshot-every', type=int, default=0,
                         help='also keep the weights every N steps (snapshot_<step>.pt), for equal-step comparisons')
+    parser.add_argument('--bf16', action='store_true',
+                        help='run the forward pass under bfloat16 autocast (weights, optimizer and losses stay '
+                             'float32): 1.3-1.4x the steps per minute on a CPU with AVX-512 BF16')
     parser.add_argument('--out', required=True)
     args = parser.parse_args()
     if not 0.0 <= args.polish < 1.0:
@@ -240,8 +248,10 @@ def main():
                 model.train()
                 # Stages 2 and 4 step the instance head alone: a backward pass into the rest is wasted work.
                 head_only = stage in (2, 4)
-                depth, gaussians, embeddings, votes, room_logits, sweep_depth = model.forward_training(
-                    **model.inputs(batch), instance_gradient=not (args.decouple or head_only))
+                with torch.autocast(device.type, dtype=torch.bfloat16, enabled=args.bf16):
+                    outputs = model.forward_training(**model.inputs(batch),
+                                                     instance_gradient=not (args.decouple or head_only))
+                depth, gaussians, embeddings, votes, room_logits, sweep_depth = float32(outputs)
                 l_depth = depth_loss(depth, batch['depth'])
                 if sweep_depth is not None:
                     # Trains the matching features directly (nearest-neighbour half-resolution truth).

@@ -1,5 +1,6 @@
-"""The curriculum's stages (train_recon.stage_of) and the fast unit vectors the model normalizes with
-(gf.model.unit_vectors): `train/.venv/bin/python -m pytest -q train/tests`."""
+"""The curriculum's stages (train_recon.stage_of), the fast unit vectors the model normalizes with
+(gf.model.unit_vectors) and the bfloat16 forward pass (--bf16): `train/.venv/bin/python -m pytest -q
+train/tests`."""
 
 import sys
 from pathlib import Path
@@ -8,8 +9,8 @@ import torch
 from torch.nn import functional as F
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from gf.model import unit_vectors  # noqa: E402
-from train_recon import stage_of  # noqa: E402
+from gf.model import GroupForwardMini, unit_vectors  # noqa: E402
+from train_recon import float32, stage_of  # noqa: E402
 
 
 def stages(split, polish=0.0, steps=100):
@@ -42,3 +43,23 @@ def test_unit_vectors_of_zero_vectors_stay_finite_with_finite_gradients():
     y.sum().backward()
     assert torch.all(y == 0)
     assert torch.isfinite(x.grad).all()
+
+
+def test_outputs_reach_the_losses_as_float32_and_absent_ones_stay_absent():
+    outputs = float32((torch.ones(2, dtype=torch.bfloat16), None, torch.zeros(3)))
+    assert outputs[0].dtype == torch.float32 and outputs[1] is None and outputs[2].dtype == torch.float32
+
+
+def test_bfloat16_forward_stays_close_to_float32():
+    # --bf16 trains with this forward and ships float32 weights: the two must agree to bfloat16's precision.
+    torch.manual_seed(0)
+    model = GroupForwardMini(mode='rgbd', room_gate=True).eval()
+    images, points = torch.rand(1, 2, 3, 96, 128), torch.rand(1, 2, 3, 96, 128) * 4.0
+    with torch.no_grad():
+        depth, _, embeddings = model(images, points)
+        with torch.autocast('cpu', dtype=torch.bfloat16):
+            depth_bf16, _, embeddings_bf16 = float32(model(images, points))
+    assert torch.isfinite(depth_bf16).all() and torch.isfinite(embeddings_bf16).all()
+    assert ((depth_bf16 - depth).abs() / depth).median() < 0.02
+    cosine = F.cosine_similarity(embeddings_bf16, embeddings, dim=2)
+    assert cosine.median() > 0.98
