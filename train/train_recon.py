@@ -172,7 +172,7 @@ def main():
                         help='also keep the weights every N steps (snapshot_<step>.pt), for equal-step comparisons')
     parser.add_argument('--bf16', action='store_true',
                         help='run the forward pass under bfloat16 autocast (weights, optimizer and losses stay '
-                             'float32): 1.3-1.4x the steps per minute on a CPU with AVX-512 BF16')
+                             'float32): 1.3-1.5x the steps per minute on a CPU with AVX-512 BF16')
     parser.add_argument('--out', required=True)
     args = parser.parse_args()
     if not 0.0 <= args.polish < 1.0:
