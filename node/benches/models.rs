@@ -11,7 +11,7 @@
 use std::path::Path;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
-use groupforward::ingest::{DepthImage, RgbImage};
+use groupforward::frame::{DepthImage, RgbImage};
 use groupforward::model::reconstruction::{ReconstructionModel, View};
 use groupforward::model::text::TextEncoder;
 use groupforward::model::{init_runtime, SessionOptions};

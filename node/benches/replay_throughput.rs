@@ -11,10 +11,11 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
-use groupforward::config::{Config, ZenohSection};
+use groupforward::config::Config;
 use groupforward::ingest::Route;
 use groupforward::node::{declare, InputQueue, Node, Shared};
 use groupforward::replay::{replay_buffers, ReplayOptions};
+use groupforward::transport::ZenohSection;
 use groupforward::transport::{open_session, ZenohTransport};
 use groupforward_sim::testcard::TestCard;
 
@@ -84,7 +85,7 @@ fn replay_to_node(c: &mut Criterion) {
     });
     // The same messages straight into the pipeline, no zenoh: the transport's share is the ratio.
     let routes: std::collections::HashMap<String, Route> =
-        groupforward::ingest::Ingest::routes(&config)
+        groupforward::ingest::Ingest::routes(&config.cameras, &config.tf)
             .into_iter()
             .collect();
     let messages: Vec<(Route, Vec<u8>)> = mcap::MessageStream::new(&bag)

@@ -22,7 +22,8 @@ use groupforward_sim::scene::SceneFile;
 use groupforward_sim::simulation::Simulation;
 use zenoh::Wait;
 
-use crate::config::{Config, ZenohSection};
+use crate::config::Config;
+use crate::transport::ZenohSection;
 use crate::transport::{open_session, Endpoint, Transport, TransportError, ZenohTransport};
 
 #[derive(Debug, thiserror::Error)]

@@ -1,21 +1,32 @@
 //! groupforward: a robotics node that turns camera streams into a referable 3D scene.
 //!
-//! Pipeline stages are plain structs over plain data, each testable without a network:
-//! - [`ingest`]: decode, validate and sync camera, depth, camera-info and TF messages by stamp;
-//! - [`node`]: the loop that feeds the stages from a bounded queue and reports status;
-//! - [`recon`]: cameras, Gaussians, the tile rasterizer, gauge alignment and metrics;
-//! - [`graph`]: the persistent instance map (fusion across windows, scene graph, snapshots);
-//! - [`group`]: HDBSCAN over instance embeddings and softmax assignment to instances;
-//! - [`model`]: ONNX models through `ort` (runtime discovery, manifests, runners);
-//! - [`transport`]: rmw_zenoh-compatible zenoh transport (and an in-memory one for tests);
-//! - [`replay`]: publish a rosbag2 MCAP bag as a live robot would;
-//! - [`window`]: keyframes, one model pass per window, grouping into window instances;
-//! - [`demo`]: everything in one process over an embedded zenoh peer.
+//! Data flow (DESIGN §2): camera, depth, camera-info and TF messages → [`ingest`] (decode,
+//! validate, sync by stamp) → [`window`] (keyframes; one [`model`] pass per window; [`group`]:
+//! HDBSCAN on the embeddings, semantic prototypes) → [`graph`] (fusion into the persistent map,
+//! scene graph, snapshots) → services and status. [`node`] runs that loop over a [`transport`].
 //!
-//! Semantics per instance and referring land as further stages.
+//! Modules, bottom up; each imports only modules above it in this list, never one below:
+//!
+//! | module | holds |
+//! |---|---|
+//! | [`recon`] | the geometric core: rigid transforms, cameras, Gaussians, the tile rasterizer, gauge alignment, metrics |
+//! | [`frame`] | the data that flows between stages: images, synced frames, keyframes, window instances |
+//! | [`transport`] | rmw_zenoh-compatible zenoh transport, an in-memory one for tests; its config section |
+//! | [`ingest`] | decode, validate, TF buffer and stamp sync; its config sections |
+//! | [`model`] | ONNX models through `ort` (runtime discovery, manifests, runners); its config section |
+//! | [`group`] | HDBSCAN over instance embeddings, softmax assignment, semantic prototypes and naming |
+//! | [`graph`] | the persistent instance map: fusion across windows, scene graph, snapshots |
+//! | [`window`] | keyframe selection and one window pass (model → lifting → grouping → prototypes) |
+//! | [`config`] | assembles the stages' sections into the node's YAML config |
+//! | [`node`] | the loop: input queue, window worker, services, status |
+//! | [`replay`] | publish a rosbag2 MCAP bag as a live robot would |
+//! | [`demo`] | sim scene → bag → replay → node → queries, in one process over an embedded zenoh peer |
+//!
+//! The command line (`src/cli/`, one file per subcommand) is the binary's, not the library's.
 
 pub mod config;
 pub mod demo;
+pub mod frame;
 pub mod graph;
 pub mod group;
 pub mod ingest;

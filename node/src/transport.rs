@@ -15,7 +15,45 @@ use groupforward_msgs::rmw_zenoh::{
 };
 use zenoh::Wait;
 
-use crate::config::{ZenohMode, ZenohSection};
+use serde::{Deserialize, Serialize};
+
+/// ROS_DOMAIN_ID unless configured.
+pub const DEFAULT_DOMAIN_ID: u32 = 0;
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum ZenohMode {
+    #[default]
+    Peer,
+    Client,
+    Router,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ZenohSection {
+    pub mode: ZenohMode,
+    /// Endpoints to listen on, e.g. `tcp/0.0.0.0:7447`.
+    pub listen: Vec<String>,
+    /// Endpoints to connect to, e.g. the rmw_zenoh router `tcp/localhost:7447`.
+    pub connect: Vec<String>,
+    /// Off by default: robots on shared networks should not discover each other by accident.
+    pub multicast_scouting: bool,
+    /// ROS_DOMAIN_ID, the first chunk of every rmw_zenoh key.
+    pub domain_id: u32,
+}
+
+impl Default for ZenohSection {
+    fn default() -> Self {
+        Self {
+            mode: ZenohMode::Peer,
+            listen: Vec::new(),
+            connect: vec!["tcp/localhost:7447".into()],
+            multicast_scouting: false,
+            domain_id: DEFAULT_DOMAIN_ID,
+        }
+    }
+}
 
 #[derive(Debug, thiserror::Error)]
 pub enum TransportError {
@@ -158,7 +196,7 @@ impl ZenohTransport {
             name: name.to_owned(),
             enclave: "/".into(),
         };
-        tracing::info!(token = %node.node_token(), "liveliness token");
+        tracing::debug!(token = %node.node_token(), "liveliness token");
         let token = session
             .liveliness()
             .declare_token(node.node_token())
@@ -187,7 +225,7 @@ impl ZenohTransport {
             &endpoint.type_hash,
             &endpoint.qos,
         )?;
-        tracing::info!(token = %token_key, "liveliness token");
+        tracing::debug!(token = %token_key, "liveliness token");
         let token = self
             .session
             .liveliness()
@@ -241,7 +279,7 @@ impl Transport for ZenohTransport {
         // payload is validated when decoded.
         let key = rmw_zenoh::data_key(self.node.domain_id, &topic.name, &topic.type_name, "*")?;
         self.announce(EntityKind::Subscription, topic)?;
-        tracing::info!(%key, "subscribing");
+        tracing::debug!(%key, "subscribing");
         let subscriber = self
             .session
             .declare_subscriber(key)
@@ -255,7 +293,7 @@ impl Transport for ZenohTransport {
     fn advertise(&self, topic: &Endpoint) -> Result<Box<dyn Publisher>> {
         let key = self.data_key(topic)?;
         let gid = self.announce(EntityKind::Publisher, topic)?;
-        tracing::info!(%key, "publishing");
+        tracing::debug!(%key, "publishing");
         let publisher = self.session.declare_publisher(key).wait().map_err(zerr)?;
         Ok(Box::new(ZenohPublisher {
             publisher,
@@ -267,7 +305,7 @@ impl Transport for ZenohTransport {
     fn serve(&self, service: &Endpoint, handler: ServiceHandler) -> Result<()> {
         let key = self.data_key(service)?;
         self.announce(EntityKind::ServiceServer, service)?;
-        tracing::info!(%key, "serving");
+        tracing::debug!(%key, "serving");
         let name = service.name.clone();
         let queryable = self
             .session
@@ -310,7 +348,7 @@ impl Transport for ZenohTransport {
     fn serve_json(&self, prefix: &str, handler: JsonHandler) -> Result<()> {
         let prefix = prefix.trim_end_matches('/').to_owned();
         let key = format!("{prefix}/*");
-        tracing::info!(%key, "serving JSON API");
+        tracing::debug!(%key, "serving JSON API");
         let queryable = self
             .session
             .declare_queryable(key)

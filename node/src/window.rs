@@ -10,10 +10,9 @@ use std::collections::VecDeque;
 
 use serde::{Deserialize, Serialize};
 
-use crate::graph::{Keyframe, WindowInstance, WindowView};
+use crate::frame::{Keyframe, SyncedFrame, WindowInstance, WindowView};
 use crate::group::semantics::{prototypes, LabelledView};
 use crate::group::{group, GroupError, GroupingParams};
-use crate::ingest::SyncedFrame;
 use crate::model::reconstruction::{lifted_pixels, resized_camera, ReconstructionModel, View};
 use crate::model::semantic::{DenseFeatures, SemanticModel};
 use crate::model::ModelError;

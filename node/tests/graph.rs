@@ -3,8 +3,9 @@
 //! been seen, caps and clearing; the scene graph's attributes; snapshots that survive torn writes.
 
 use glam::{DQuat, DVec3, Quat, Vec3};
+use groupforward::frame::{Keyframe, WindowInstance, WindowView};
 use groupforward::graph::persist::{self, PersistError};
-use groupforward::graph::{FusionParams, Keyframe, SceneMap, WindowInstance, WindowView};
+use groupforward::graph::{FusionParams, SceneMap};
 use groupforward::recon::camera::Camera;
 use groupforward::recon::gaussians::Gaussians;
 use groupforward::recon::Rigid;

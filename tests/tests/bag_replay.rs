@@ -8,9 +8,10 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 
-use groupforward::config::{Config, ZenohSection};
+use groupforward::config::Config;
 use groupforward::demo::{query_json, wait_for};
 use groupforward::replay::{replay_buffers, ReplayOptions};
+use groupforward::transport::ZenohSection;
 use groupforward::transport::{open_session, ZenohTransport};
 use groupforward_msgs::gf_msgs::NodeStatus;
 use groupforward_sim::testcard::TestCard;

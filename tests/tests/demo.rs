@@ -29,7 +29,7 @@ fn the_demo_replays_a_sim_recorded_bag_into_the_node() {
         .all(|i| i.id.starts_with("inst_") && i.point_count > 0));
     // The shipped semantic model ran: every instance is named from the vocabulary, best first,
     // with softmax scores; the biggest one (walls and floor) is `other`.
-    let vocabulary = groupforward::config::default_vocabulary();
+    let vocabulary = groupforward::group::semantics::default_vocabulary();
     for instance in &report.instances {
         assert_eq!(instance.hypotheses.len(), 3, "{}", instance.id);
         assert!(instance
@@ -48,7 +48,7 @@ fn the_demo_replays_a_sim_recorded_bag_into_the_node() {
         .unwrap();
     assert_eq!(
         biggest.hypotheses[0].class_id,
-        groupforward::config::OTHER_PHRASE
+        groupforward::group::semantics::OTHER_PHRASE
     );
     assert!(report.expressions.len() >= 5);
     for e in &report.expressions {

@@ -7,7 +7,8 @@
 use std::collections::BTreeMap;
 
 use glam::{Quat, Vec3};
-use groupforward::graph::{FusionParams, Keyframe, SceneMap, WindowInstance, WindowView};
+use groupforward::frame::{Keyframe, WindowInstance, WindowView};
+use groupforward::graph::{FusionParams, SceneMap};
 use groupforward::recon::camera::Camera;
 use groupforward::recon::gaussians::Gaussians;
 use groupforward::recon::Rigid;

@@ -6,7 +6,7 @@
 
 use std::path::{Path, PathBuf};
 
-use groupforward::ingest::{DepthImage, RgbImage};
+use groupforward::frame::{DepthImage, RgbImage};
 use groupforward::model::manifest::Manifest;
 use groupforward::model::reconstruction::{Geometry, ModelInputs, ReconstructionModel, View};
 use groupforward::model::{init_runtime, ModelError, SessionOptions};

@@ -8,10 +8,10 @@
 
 use std::path::Path;
 
-use groupforward::config::{default_vocabulary, OTHER_PHRASE};
+use groupforward::frame::{DepthImage, RgbImage, SyncedFrame};
 use groupforward::group::semantics::Vocabulary;
+use groupforward::group::semantics::{default_vocabulary, OTHER_PHRASE};
 use groupforward::group::GroupingParams;
-use groupforward::ingest::{DepthImage, RgbImage, SyncedFrame};
 use groupforward::model::manifest::InputMode;
 use groupforward::model::reconstruction::{ReconstructionModel, View};
 use groupforward::model::semantic::SemanticModel;

@@ -5,7 +5,7 @@
 use std::path::Path;
 
 use glam::{DQuat, DVec3};
-use groupforward::ingest::{DepthImage, RgbImage, SyncedFrame};
+use groupforward::frame::{DepthImage, RgbImage, SyncedFrame};
 use groupforward::model::reconstruction::ReconstructionModel;
 use groupforward::model::{init_runtime, SessionOptions};
 use groupforward::recon::camera::Camera;

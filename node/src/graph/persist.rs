@@ -18,10 +18,31 @@ use glam::{Quat, Vec3};
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
-use super::{FusionParams, Instance, Keyframe, SceneMap};
+use super::fusion::SceneMap;
+use super::instance::{FusionParams, Instance};
+use crate::frame::Keyframe;
 use crate::recon::camera::{Camera, PlumbBob};
 use crate::recon::gaussians::Gaussians;
 use crate::recon::Rigid;
+
+/// The persistent instance map: where `~/save_map` and `~/load_map` write and read by default.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MapSection {
+    /// Snapshot file; `null`: services need an explicit path and nothing is restored.
+    pub file: Option<String>,
+    /// Load `file` at start when it exists (a corrupt or newer file is logged; the map starts empty).
+    pub restore_on_start: bool,
+}
+
+impl Default for MapSection {
+    fn default() -> Self {
+        Self {
+            file: None,
+            restore_on_start: true,
+        }
+    }
+}
 
 pub const MAGIC: &[u8; 8] = b"GFMAP\r\n\x1a";
 pub const VERSION: u32 = 1;

@@ -5,10 +5,50 @@
 //! probabilities are rendered with the rasterizer; a pixel's instance is the most probable one and
 //! its feature is Σ_k p_k f_k.
 
+use serde::{Deserialize, Serialize};
+
 use crate::recon::camera::Camera;
 use crate::recon::gaussians::Gaussians;
 use crate::recon::raster::{render, RasterSettings};
 use crate::recon::Rigid;
+
+/// How instances are named: hypotheses from the semantic prototype against a vocabulary.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SemanticsSection {
+    /// Phrases instances are named with (ObjectHypothesis class_id), embedded by the text encoder;
+    /// any words work. `other` catches walls, floor and unnamed things.
+    pub vocabulary: Vec<String>,
+    /// τ of the softmax over the vocabulary's cosines that gives hypothesis scores.
+    pub temperature: f32,
+    /// Hypotheses per instance, best first.
+    pub hypotheses: usize,
+}
+
+/// What walls, floor and anything unnamed are called (the semantic model's explicit `other` class).
+pub const OTHER_PHRASE: &str = "other";
+
+/// The simulator's object classes (ScanNet names) and `other`: what the shipped semantic model
+/// was trained on.
+pub fn default_vocabulary() -> Vec<String> {
+    groupforward_sim::library::classes()
+        .iter()
+        .map(|c| c.name.to_owned())
+        .chain([OTHER_PHRASE.to_owned()])
+        .collect()
+}
+pub const DEFAULT_SEMANTIC_TEMPERATURE: f32 = 0.05;
+pub const DEFAULT_HYPOTHESES: usize = 3;
+
+impl Default for SemanticsSection {
+    fn default() -> Self {
+        Self {
+            vocabulary: default_vocabulary(),
+            temperature: DEFAULT_SEMANTIC_TEMPERATURE,
+            hypotheses: DEFAULT_HYPOTHESES,
+        }
+    }
+}
 
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum SemanticsError {

@@ -13,11 +13,58 @@ pub mod text;
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
+use serde::{Deserialize, Serialize};
+
 /// The ONNX Runtime version the project pins (PyPI `onnxruntime`), matching `ort` 2.0.0-rc.15.
 pub const ONNXRUNTIME_VERSION: &str = "1.31.1";
 /// How to install the library the node looks for.
 pub const INSTALL_HINT: &str =
     "run `make setup` (installs PyPI onnxruntime==1.31.1 into .venv), or set `ORT_DYLIB_PATH` / the config's `onnxruntime` path to libonnxruntime.so";
+
+pub const DEFAULT_TEXT_ENCODER: &str = "models/all-MiniLM-L6-v2.toml";
+pub const DEFAULT_RECONSTRUCTION: &str = "models/groupforward-mini-rgbd.toml";
+pub const DEFAULT_SEMANTIC: &str = "models/semantic-mini.toml";
+pub const DEFAULT_MODEL_THREADS: usize = 2;
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ModelsSection {
+    /// ONNX Runtime library; null: `ORT_DYLIB_PATH`, then the project's `.venv` (`make setup`).
+    pub onnxruntime: Option<std::path::PathBuf>,
+    /// Execution provider: cpu, cuda or tensorrt (GPU providers need the matching cargo feature).
+    pub provider: Provider,
+    /// ONNX Runtime intra-op threads per model.
+    pub threads: usize,
+    /// Text encoder manifest (relative paths resolve against the working directory).
+    pub text_encoder: std::path::PathBuf,
+    /// Reconstruction model manifest; `null` or a missing file: ingest only, no instances.
+    pub reconstruction: Option<std::path::PathBuf>,
+    /// Semantic model manifest (features per pixel, pooled into one prototype per instance);
+    /// `null` or a missing file: instances are unnamed and associate by geometry alone.
+    pub semantic: Option<std::path::PathBuf>,
+}
+
+impl Default for ModelsSection {
+    fn default() -> Self {
+        Self {
+            onnxruntime: None,
+            provider: Provider::Cpu,
+            threads: DEFAULT_MODEL_THREADS,
+            text_encoder: DEFAULT_TEXT_ENCODER.into(),
+            reconstruction: Some(DEFAULT_RECONSTRUCTION.into()),
+            semantic: Some(DEFAULT_SEMANTIC.into()),
+        }
+    }
+}
+
+impl ModelsSection {
+    pub fn session_options(&self) -> SessionOptions {
+        SessionOptions {
+            provider: self.provider,
+            intra_threads: self.threads,
+        }
+    }
+}
 
 #[derive(Debug, thiserror::Error)]
 pub enum ModelError {

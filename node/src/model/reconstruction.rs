@@ -15,7 +15,7 @@ use glam::{DMat3, DVec2, DVec3};
 
 use super::manifest::{InputMode, Manifest, ModelKind, Normalization};
 use super::{open_session, ModelError, Result, SessionOptions};
-use crate::ingest::{DepthImage, RgbImage};
+use crate::frame::{DepthImage, RgbImage};
 use crate::recon::camera::Camera;
 use crate::recon::gaussians::{lift, Gaussians, PixelAligned};
 use crate::recon::Rigid;

@@ -10,7 +10,7 @@ use std::path::Path;
 use super::manifest::{Manifest, ModelKind};
 use super::reconstruction::model_image;
 use super::{open_session, ModelError, Result, SessionOptions};
-use crate::ingest::RgbImage;
+use crate::frame::RgbImage;
 
 /// Dense features of one image, pixel-major: `data[(y * width + x) * channels + c]`.
 #[derive(Debug, Clone, PartialEq)]

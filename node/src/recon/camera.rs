@@ -4,7 +4,6 @@
 use glam::{DMat3, DQuat, DVec2, DVec3};
 
 use super::Rigid;
-use crate::ingest::RgbImage;
 
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum CameraError {
@@ -189,34 +188,6 @@ impl Camera {
         }
     }
 
-    /// Resample a distorted image into the undistorted pinhole camera (bilinear, black outside).
-    pub fn undistort_image(&self, image: &RgbImage) -> RgbImage {
-        let (w, h) = (image.width as usize, image.height as usize);
-        let mut data = vec![0u8; w * h * 3];
-        if self.distortion.is_zero() {
-            data.copy_from_slice(&image.data[..w * h * 3]);
-        } else {
-            for v in 0..h {
-                for u in 0..w {
-                    let n = DVec2::new(
-                        (u as f64 - self.cx) / self.fx,
-                        (v as f64 - self.cy) / self.fy,
-                    );
-                    let d = self.distortion.distort(n);
-                    let src = DVec2::new(self.fx * d.x + self.cx, self.fy * d.y + self.cy);
-                    if let Some(rgb) = bilinear(image, src) {
-                        data[(v * w + u) * 3..][..3].copy_from_slice(&rgb);
-                    }
-                }
-            }
-        }
-        RgbImage {
-            width: image.width,
-            height: image.height,
-            data,
-        }
-    }
-
     pub fn fov_x(&self) -> f64 {
         2.0 * (f64::from(self.width) / 2.0 / self.fx).atan()
     }
@@ -224,24 +195,6 @@ impl Camera {
     pub fn fov_y(&self) -> f64 {
         2.0 * (f64::from(self.height) / 2.0 / self.fy).atan()
     }
-}
-
-fn bilinear(image: &RgbImage, p: DVec2) -> Option<[u8; 3]> {
-    let (w, h) = (image.width as usize, image.height as usize);
-    if !(p.x >= 0.0 && p.y >= 0.0 && p.x <= (w - 1) as f64 && p.y <= (h - 1) as f64) {
-        return None;
-    }
-    let (x0, y0) = (p.x.floor() as usize, p.y.floor() as usize);
-    let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
-    let (fx, fy) = (p.x - x0 as f64, p.y - y0 as f64);
-    let at = |x: usize, y: usize, c: usize| f64::from(image.data[(y * w + x) * 3 + c]);
-    let mut out = [0u8; 3];
-    for (c, value) in out.iter_mut().enumerate() {
-        let top = at(x0, y0, c) * (1.0 - fx) + at(x1, y0, c) * fx;
-        let bottom = at(x0, y1, c) * (1.0 - fx) + at(x1, y1, c) * fx;
-        *value = (top * (1.0 - fy) + bottom * fy).round().clamp(0.0, 255.0) as u8;
-    }
-    Some(out)
 }
 
 /// The 9-d camera encoding of VGGT: `[t (3), q (4, xyzw), fov_h, fov_w]` of the extrinsic
@@ -309,21 +262,27 @@ pub fn opengl_to_optical(world_from_gl_camera: &Rigid) -> Rigid {
     world_from_gl_camera.compose(&Rigid::new(optical_from_opengl().inverse(), DVec3::ZERO))
 }
 
+/// A 640×480 camera with strong barrel distortion (the values the OpenCV checks use).
+#[cfg(test)]
+pub(crate) fn distorted_test_camera() -> Camera {
+    Camera {
+        distortion: PlumbBob {
+            k1: -0.28,
+            k2: 0.07,
+            p1: 0.001,
+            p2: -0.0005,
+            k3: 0.0,
+        },
+        ..Camera::pinhole(640, 480, 500.0, 505.0, 321.5, 239.0).expect("valid intrinsics")
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
 
     fn distorted() -> Camera {
-        Camera {
-            distortion: PlumbBob {
-                k1: -0.28,
-                k2: 0.07,
-                p1: 0.001,
-                p2: -0.0005,
-                k3: 0.0,
-            },
-            ..Camera::pinhole(640, 480, 500.0, 505.0, 321.5, 239.0).unwrap()
-        }
+        distorted_test_camera()
     }
 
     #[test]
@@ -351,24 +310,6 @@ mod tests {
         let radial = 1.0 - 0.28 * r2 + 0.07 * r2 * r2;
         let expected_x = 0.3 * radial + 2.0 * 0.001 * 0.3 * -0.2 + -0.0005 * (r2 + 2.0 * 0.09);
         assert!((p.x - expected_x).abs() < 1e-15);
-    }
-
-    #[test]
-    fn undistorting_an_undistorted_camera_is_identity() {
-        let camera = Camera::from_fov(4, 3, 1.0).unwrap();
-        let image = RgbImage {
-            width: 4,
-            height: 3,
-            data: (0..36).collect(),
-        };
-        assert_eq!(camera.undistort_image(&image), image);
-        let warped = distorted().undistort_image(&RgbImage {
-            width: 640,
-            height: 480,
-            data: vec![200; 640 * 480 * 3],
-        });
-        // The centre maps onto itself; the corners fall outside the distorted image.
-        assert_eq!(warped.data[(240 * 640 + 320) * 3], 200);
     }
 
     #[test]

@@ -1,288 +1,33 @@
-//! Referring expressions generated from ground truth, for benchmark sets.
-//!
-//! Templates cover every relation of the Sr3D taxonomy the node answers (closest / farthest,
-//! above / below, on / supporting, left / right / front / behind in a named view, between),
-//! superlatives, colour attributes, function phrases and plural cardinality. An expression is
-//! kept only if exactly its targets satisfy it with a margin, using the thresholds ReferIt3D's
-//! Sr3D generator uses: a 0.2 m gap for closest / farthest, 0.06 m vertical separation for above
-//! / below, support touching within 0.15 m, 0.3 m clearance for between, 10° for view-dependent
-//! directions. Every other object of the target's class must clearly fail.
+//! The templates: each method adds every unambiguous expression of one kind to the builder.
 
-use glam::{DQuat, DVec3};
-use serde::{Deserialize, Serialize};
-
+use super::relations::{
+    above_margin, bearing, between_margin, color_distance, color_name, front_margin, left_margin,
+    on_margin, plural, Expression, Geometry, PairMargin, Relation, ViewPose, BETWEEN_CLEARANCE_M,
+    CLOSEST_GAP_M, DEPTH_GAP_M, DIRECTION_MARGIN_DEG, SIZE_RATIO, VERTICAL_SEPARATION_M,
+};
 use crate::library;
-use crate::render::{PlacedObject, Scene};
-
-/// Sr3D's thresholds.
-pub const CLOSEST_GAP_M: f64 = 0.2;
-pub const VERTICAL_SEPARATION_M: f64 = 0.06;
-pub const SUPPORT_CONTACT_M: f64 = 0.15;
-pub const BETWEEN_CLEARANCE_M: f64 = 0.3;
-pub const DIRECTION_MARGIN_DEG: f64 = 10.0;
-/// Superlatives of size need the biggest to be this many times the runner-up's volume.
-pub const SIZE_RATIO: f64 = 1.25;
-/// Front / behind need this much depth difference in the view (metres).
-pub const DEPTH_GAP_M: f64 = 0.3;
-
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Relation {
-    /// "the trash bin" (the only one), or "all the chairs" (cardinality > 1).
-    Class,
-    Closest,
-    Farthest,
-    Above,
-    Below,
-    On,
-    Supporting,
-    Left,
-    Right,
-    Front,
-    Behind,
-    Between,
-    Biggest,
-    Smallest,
-    Tallest,
-    Highest,
-    Lowest,
-    Leftmost,
-    Rightmost,
-    Color,
-    Function,
-}
-
-impl Relation {
-    pub fn view_dependent(self) -> bool {
-        matches!(
-            self,
-            Relation::Left
-                | Relation::Right
-                | Relation::Front
-                | Relation::Behind
-                | Relation::Leftmost
-                | Relation::Rightmost
-        )
-    }
-}
-
-/// The viewpoint a view-dependent expression is decided in: `world_from_camera` of the rig's
-/// first camera at a trajectory frame (REP-103 optical frame), as the Refer service's `view_pose`.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct ViewPose {
-    pub frame: usize,
-    pub position: [f64; 3],
-    /// x, y, z, w.
-    pub orientation: [f64; 4],
-}
-
-impl ViewPose {
-    pub fn new(frame: usize, rotation: DQuat, position: DVec3) -> Self {
-        Self {
-            frame,
-            position: position.to_array(),
-            orientation: rotation.to_array(),
-        }
-    }
-
-    /// A world point in this camera's frame.
-    fn in_camera(&self, p: DVec3) -> DVec3 {
-        let rotation = DQuat::from_array(self.orientation);
-        rotation.inverse() * (p - DVec3::from(self.position))
-    }
-}
-
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct Expression {
-    pub text: String,
-    pub relation: Relation,
-    /// Instance ids the expression means (sorted); `cardinality` = their number.
-    pub targets: Vec<u16>,
-    pub cardinality: usize,
-    /// The targets' class ("" for function phrases, which name no class).
-    pub target_class: String,
-    /// Instances of the anchor classes the relation is about.
-    pub anchors: Vec<u16>,
-    /// Objects of the target's class that are not targets (ReferIt3D "hard": more than 2).
-    pub distractors: usize,
-    pub view_dependent: bool,
-    pub view: Option<ViewPose>,
-}
-
-/// The geometry of one object as relations see it.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Geometry {
-    pub id: u16,
-    pub class: &'static str,
-    pub lo: DVec3,
-    pub hi: DVec3,
-    pub color: [f32; 3],
-}
-
-impl Geometry {
-    pub fn new(object: &PlacedObject) -> Self {
-        let (lo, hi) = object.bounds();
-        let class = library::classes()
-            .into_iter()
-            .find(|c| c.id == object.class_id)
-            .map_or("object", |c| c.name);
-        Self {
-            id: object.instance_id,
-            class,
-            lo,
-            hi,
-            color: object.color,
-        }
-    }
-
-    pub fn center(&self) -> DVec3 {
-        (self.lo + self.hi) / 2.0
-    }
-
-    pub fn volume(&self) -> f64 {
-        let s = self.hi - self.lo;
-        s.x * s.y * s.z
-    }
-
-    pub fn height(&self) -> f64 {
-        self.hi.z - self.lo.z
-    }
-
-    /// Overlap of the two footprints (xy), metres; negative: the gap between them.
-    fn footprint_overlap(&self, other: &Geometry) -> f64 {
-        let x = self.hi.x.min(other.hi.x) - self.lo.x.max(other.lo.x);
-        let y = self.hi.y.min(other.hi.y) - self.lo.y.max(other.lo.y);
-        x.min(y)
-    }
-}
-
-/// Margin (metres) by which `t` stands on `a`: positive when `t`'s footprint centre lies on
-/// `a`'s footprint and `t`'s base is within `a`'s height range (or touching its top within
-/// 0.15 m), off the floor.
-pub fn on_margin(t: &Geometry, a: &Geometry) -> f64 {
-    let c = t.center();
-    let inside = (c.x - a.lo.x)
-        .min(a.hi.x - c.x)
-        .min(c.y - a.lo.y)
-        .min(a.hi.y - c.y);
-    let base = t.lo.z;
-    let vertical = (base - a.lo.z).min(a.hi.z + SUPPORT_CONTACT_M - base);
-    inside.min(vertical).min(base - 0.05)
-}
-
-/// Margin by which `t` is above `a`: footprints overlap, `t`'s base at or over `a`'s top (within
-/// the contact tolerance) and its centre at least 0.06 m higher.
-pub fn above_margin(t: &Geometry, a: &Geometry) -> f64 {
-    let overlap = t.footprint_overlap(a);
-    let base = t.lo.z - (a.hi.z - SUPPORT_CONTACT_M);
-    let separation = t.center().z - a.center().z - VERTICAL_SEPARATION_M;
-    overlap.min(base).min(separation)
-}
-
-/// Horizontal bearing (degrees, positive to the right) and depth of a point in a view.
-fn bearing(view: &ViewPose, p: DVec3) -> (f64, f64) {
-    let c = view.in_camera(p);
-    (c.x.atan2(c.z).to_degrees(), c.z)
-}
-
-/// Margin (degrees) by which `t` is left of `a` in `view`.
-pub fn left_margin(view: &ViewPose, t: &Geometry, a: &Geometry) -> f64 {
-    let (bt, _) = bearing(view, t.center());
-    let (ba, _) = bearing(view, a.center());
-    ba - bt - DIRECTION_MARGIN_DEG
-}
-
-/// Margin (metres) by which `t` is in front of `a` (nearer the viewer, roughly in line).
-pub fn front_margin(view: &ViewPose, t: &Geometry, a: &Geometry) -> f64 {
-    let (bt, zt) = bearing(view, t.center());
-    let (ba, za) = bearing(view, a.center());
-    let in_line = (25.0 - (bt - ba).abs()) / 25.0 * DEPTH_GAP_M;
-    (za - zt - DEPTH_GAP_M).min(in_line)
-}
-
-/// Margin (metres) by which `t` lies between `a` and `b` (in the floor plane): inside the
-/// corridor joining their centres, half a metre wide each side, away from its ends.
-pub fn between_margin(t: &Geometry, a: &Geometry, b: &Geometry) -> f64 {
-    let flat = |v: DVec3| DVec3::new(v.x, v.y, 0.0);
-    let (pa, pb, pt) = (flat(a.center()), flat(b.center()), flat(t.center()));
-    let ab = pb - pa;
-    let length = ab.length();
-    if length < 1e-6 {
-        return f64::NEG_INFINITY;
-    }
-    let s = (pt - pa).dot(ab) / (length * length);
-    let along = (s.min(1.0 - s) - 0.15) * length;
-    let across = 0.5 - (pt - (pa + s * ab)).length();
-    along.min(across)
-}
-
-/// The nearest colour name of an RGB triple.
-pub fn color_name(color: [f32; 3]) -> &'static str {
-    const PALETTE: &[(&str, [f32; 3])] = &[
-        ("red", [0.8, 0.15, 0.15]),
-        ("orange", [0.9, 0.5, 0.15]),
-        ("yellow", [0.9, 0.85, 0.3]),
-        ("green", [0.2, 0.6, 0.25]),
-        ("blue", [0.2, 0.3, 0.75]),
-        ("purple", [0.5, 0.25, 0.6]),
-        ("brown", [0.5, 0.32, 0.18]),
-        ("black", [0.08, 0.08, 0.1]),
-        ("white", [0.93, 0.93, 0.93]),
-        ("grey", [0.5, 0.5, 0.5]),
-        ("beige", [0.85, 0.78, 0.6]),
-    ];
-    let distance = |c: &[f32; 3]| {
-        c.iter()
-            .zip(color)
-            .map(|(a, b)| (a - b) * (a - b))
-            .sum::<f32>()
-    };
-    PALETTE
-        .iter()
-        .min_by(|a, b| distance(&a.1).total_cmp(&distance(&b.1)))
-        .map_or("grey", |p| p.0)
-}
-
-pub fn plural(class: &str) -> String {
-    match class {
-        "box" => "boxes".into(),
-        "bookshelf" => "bookshelves".into(),
-        other => format!("{other}s"),
-    }
-}
-
-fn color_distance(a: [f32; 3], b: [f32; 3]) -> f32 {
-    a.iter()
-        .zip(b)
-        .map(|(x, y)| (x - y) * (x - y))
-        .sum::<f32>()
-        .sqrt()
-}
-
-/// A margin of `t` with respect to an anchor.
-type PairMargin = dyn Fn(&Geometry, &Geometry) -> f64;
 
 /// A superlative: relation, word, key, required gap in the key, and whether the largest wins.
 type Superlative = (Relation, &'static str, fn(&Geometry) -> f64, f64, bool);
 
-struct Builder<'a> {
-    objects: &'a [Geometry],
-    out: Vec<Expression>,
+pub(super) struct Builder<'a> {
+    pub(super) objects: &'a [Geometry],
+    pub(super) out: Vec<Expression>,
 }
 
 impl<'a> Builder<'a> {
-    fn of_class(&self, class: &str) -> Vec<&'a Geometry> {
+    pub(super) fn of_class(&self, class: &str) -> Vec<&'a Geometry> {
         self.objects.iter().filter(|o| o.class == class).collect()
     }
 
-    fn classes(&self) -> Vec<&'static str> {
+    pub(super) fn classes(&self) -> Vec<&'static str> {
         let mut classes: Vec<&'static str> = self.objects.iter().map(|o| o.class).collect();
         classes.sort_unstable();
         classes.dedup();
         classes
     }
 
-    fn unique(&self, class: &str) -> Option<&'a Geometry> {
+    pub(super) fn unique(&self, class: &str) -> Option<&'a Geometry> {
         match self.of_class(class)[..] {
             [only] => Some(only),
             _ => None,
@@ -290,7 +35,7 @@ impl<'a> Builder<'a> {
     }
 
     #[allow(clippy::too_many_arguments)]
-    fn push(
+    pub(super) fn push(
         &mut self,
         text: String,
         relation: Relation,
@@ -320,7 +65,7 @@ impl<'a> Builder<'a> {
 
     /// Instances of `class` split by a margin: those at or above `+margin` and whether every
     /// other one is at or below `-margin` (clearly failing).
-    fn clear_split(
+    pub(super) fn clear_split(
         candidates: &[&Geometry],
         margin: impl Fn(&Geometry) -> f64,
         threshold: f64,
@@ -338,7 +83,7 @@ impl<'a> Builder<'a> {
         (!yes.is_empty()).then_some(yes)
     }
 
-    fn class_and_cardinality(&mut self) {
+    pub(super) fn class_and_cardinality(&mut self) {
         for class in self.classes() {
             let all = self.of_class(class);
             let ids: Vec<u16> = all.iter().map(|o| o.id).collect();
@@ -351,7 +96,7 @@ impl<'a> Builder<'a> {
         }
     }
 
-    fn distance_relations(&mut self) {
+    pub(super) fn distance_relations(&mut self) {
         for target_class in self.classes() {
             let candidates = self.of_class(target_class);
             if candidates.len() < 2 {
@@ -395,7 +140,7 @@ impl<'a> Builder<'a> {
     }
 
     /// Relations to any instance of an anchor class: on, supporting, above, below.
-    fn support_relations(&mut self) {
+    pub(super) fn support_relations(&mut self) {
         for target_class in self.classes() {
             for anchor_class in self.classes() {
                 if anchor_class == target_class {
@@ -467,7 +212,7 @@ impl<'a> Builder<'a> {
         }
     }
 
-    fn between(&mut self) {
+    pub(super) fn between(&mut self) {
         let classes = self.classes();
         for (i, a_class) in classes.iter().enumerate() {
             for b_class in &classes[i..] {
@@ -512,7 +257,7 @@ impl<'a> Builder<'a> {
         }
     }
 
-    fn superlatives(&mut self) {
+    pub(super) fn superlatives(&mut self) {
         for class in self.classes() {
             let candidates = self.of_class(class);
             if candidates.len() < 2 {
@@ -575,7 +320,7 @@ impl<'a> Builder<'a> {
         }
     }
 
-    fn colors(&mut self) {
+    pub(super) fn colors(&mut self) {
         for class in self.classes() {
             let candidates = self.of_class(class);
             if candidates.len() < 2 {
@@ -601,7 +346,7 @@ impl<'a> Builder<'a> {
         }
     }
 
-    fn functions(&mut self) {
+    pub(super) fn functions(&mut self) {
         let classes = library::classes();
         let mut affordances: Vec<&'static str> = classes
             .iter()
@@ -631,7 +376,7 @@ impl<'a> Builder<'a> {
 
     /// View-dependent relations and superlatives, decided in `view`, among objects whose centre
     /// the view sees.
-    fn view_relations(&mut self, view: ViewPose, half_fov_deg: f64) {
+    pub(super) fn view_relations(&mut self, view: ViewPose, half_fov_deg: f64) {
         let visible = |g: &Geometry| {
             let (b, z) = bearing(&view, g.center());
             z > 0.3 && b.abs() < half_fov_deg
@@ -726,54 +471,4 @@ impl<'a> Builder<'a> {
             }
         }
     }
-}
-
-/// Every unambiguous expression of `scene`; view-dependent ones in each of `views`
-/// (`half_fov_deg`: half the horizontal field of view).
-pub fn generate(scene: &Scene, views: &[ViewPose], half_fov_deg: f64) -> Vec<Expression> {
-    let objects: Vec<Geometry> = scene.objects.iter().map(Geometry::new).collect();
-    let mut builder = Builder {
-        objects: &objects,
-        out: Vec::new(),
-    };
-    builder.class_and_cardinality();
-    builder.distance_relations();
-    builder.support_relations();
-    builder.between();
-    builder.superlatives();
-    builder.colors();
-    builder.functions();
-    for view in views {
-        builder.view_relations(*view, half_fov_deg);
-    }
-    builder.out
-}
-
-/// The viewpoints of a scene's benchmark: the first camera every `every` frames of the trajectory.
-pub fn trajectory_views(file: &crate::scene::SceneFile, every: usize) -> Vec<ViewPose> {
-    let Ok(poses) = file.robot_poses() else {
-        return Vec::new();
-    };
-    let Some(camera) = file.cameras.first() else {
-        return Vec::new();
-    };
-    poses
-        .iter()
-        .enumerate()
-        .step_by(every.max(1))
-        .map(|(frame, pose)| {
-            let (rotation, position) = crate::scene::camera_pose(camera, pose);
-            ViewPose::new(frame, rotation, position)
-        })
-        .collect()
-}
-
-/// A scene's benchmark expressions: view-independent ones once, view-dependent ones in views
-/// every 20 frames.
-pub fn scene_expressions(
-    file: &crate::scene::SceneFile,
-) -> Result<Vec<Expression>, crate::scene::SceneError> {
-    let scene = file.build()?;
-    let half_fov = file.cameras.first().map_or(45.0, |c| c.fov_x_deg / 2.0);
-    Ok(generate(&scene, &trajectory_views(file, 20), half_fov))
 }

@@ -77,7 +77,8 @@ fn cube(center: glam::Vec3, side: usize) -> groupforward::recon::gaussians::Gaus
 
 /// Fusion of one window and a scene-graph update against maps of `sizes` instances.
 fn graph_bench(sizes: &[usize], window: usize, out: &Path) -> Result<()> {
-    use groupforward::graph::{FusionParams, Keyframe, SceneMap, WindowInstance, WindowView};
+    use groupforward::frame::{Keyframe, WindowInstance, WindowView};
+    use groupforward::graph::{FusionParams, SceneMap};
     use groupforward::recon::camera::Camera;
     use groupforward::recon::Rigid;
     if let Some(parent) = out.parent() {

@@ -1,0 +1,120 @@
+//! `groupforward demo`: the in-process demo ([`groupforward::demo`]) on a scene, and its summary.
+
+use anyhow::{Context, Result};
+use groupforward::demo::{run_demo, DemoOptions, DemoReport};
+
+use crate::sim::load_scene;
+
+#[derive(Debug, clap::Args)]
+pub struct DemoArgs {
+    /// A scene file (TOML) or a procedural scene `<split>:<index>` (default: the built-in
+    /// `two_chairs` scene).
+    #[arg(long)]
+    scene: Option<String>,
+    /// Replay speed factor of the recorded bag.
+    #[arg(long, default_value_t = 2.0)]
+    rate: f64,
+}
+
+pub fn run(args: DemoArgs) -> Result<()> {
+    let mut options = DemoOptions {
+        rate: args.rate,
+        ..Default::default()
+    };
+    if let Some(spec) = args.scene {
+        options.scene = load_scene(&spec)?;
+    }
+    let report = run_demo(&options).context("running the demo")?;
+    print_report(&report);
+    Ok(())
+}
+
+fn print_report(report: &DemoReport) {
+    println!(
+        "groupforward demo: sim scene -> rosbag2 bag -> replay over an embedded zenoh peer -> node"
+    );
+    println!(
+        "  scene `{}`: recorded {} frames ({} dropped), {} messages incl. /gt/... ground truth; replayed {}",
+        report.scene,
+        report.recorded.frames,
+        report.recorded.dropped,
+        report.recorded.messages,
+        report.replayed_messages
+    );
+    for camera in &report.status.cameras {
+        println!(
+            "  camera {:<8} received {:>4}  synced {:>4}  rejected {:>3}",
+            camera.name, camera.frames_received, camera.frames_synced, camera.frames_rejected
+        );
+    }
+    println!(
+        "  tf: {} transforms accepted, {} rejected; {} malformed messages published on purpose",
+        report.status.tf_received, report.status.tf_rejected, report.malformed_published
+    );
+    for rejection in &report.status.rejections {
+        println!("  rejected {:>3} x {}", rejection.count, rejection.reason);
+    }
+    if report.instances.is_empty() {
+        println!("  list_instances service answered: no instances (no reconstruction model loaded, see the log)");
+    } else {
+        println!(
+            "  list_instances service answered: {} instances (persistent id, best name and score from the semantic model, box centre and size, Gaussians; nearest ground-truth object):",
+            report.instances.len()
+        );
+        for instance in &report.instances {
+            let p = &instance.pose.position;
+            let nearest = report
+                .objects
+                .iter()
+                .map(|(id, class, q)| {
+                    let d = ((p.x - q[0]).powi(2) + (p.y - q[1]).powi(2)).sqrt();
+                    (d, id, class)
+                })
+                .min_by(|a, b| a.0.total_cmp(&b.0));
+            let nearest = nearest.map_or(String::new(), |(d, id, class)| {
+                format!("#{id} {class} ({d:.2} m)")
+            });
+            let name = instance
+                .hypotheses
+                .first()
+                .map_or("(unnamed)".to_owned(), |h| {
+                    format!("{} {:.2}", h.class_id, h.score)
+                });
+            println!(
+                "    {} {name:<18} at ({:.2}, {:.2}, {:.2}) size {:.2}x{:.2}x{:.2} m, {:>5} Gaussians; {nearest}",
+                instance.id,
+                p.x,
+                p.y,
+                p.z,
+                instance.size.x,
+                instance.size.y,
+                instance.size.z,
+                instance.point_count
+            );
+        }
+    }
+    println!("  ground truth ({} objects):", report.objects.len());
+    for (id, class, p) in &report.objects {
+        println!(
+            "    #{id:<3} {class:<12} at ({:.2}, {:.2}, {:.2})",
+            p[0], p[1], p[2]
+        );
+    }
+    println!("  referring expressions generated from ground truth (one per relation type):");
+    for e in &report.expressions {
+        let view = e.view.map_or(String::new(), |v| {
+            format!("  [seen from frame {}]", v.frame)
+        });
+        println!("    {:<48} -> {:?}{view}", e.text, e.targets);
+    }
+    match &report.vocabulary {
+        Ok(matches) => {
+            println!("  open vocabulary (all-MiniLM-L6-v2 int8 via ONNX Runtime), phrase -> sim class by name, description or affordance:");
+            for (query, class, score) in matches {
+                println!("    {query:<26} -> {class:<12} (cosine {score:.2})");
+            }
+        }
+        Err(e) => println!("  text encoder unavailable: {e}"),
+    }
+    println!("  finished in {:.1} s", report.elapsed.as_secs_f64());
+}

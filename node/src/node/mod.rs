@@ -1,0 +1,340 @@
+//! The node: subscriptions feed a bounded drop-oldest queue, one loop runs ingest and cuts
+//! keyframe windows, a worker thread runs window passes and fuses them into the map, and a status
+//! report is published every period on `~/status` and the JSON API.
+//!
+//! - [`queue`]: the bounded input queue;
+//! - [`status`]: ingest-side state and the status report;
+//! - [`worker`]: the window worker (model passes, fusion);
+//! - [`error`]: what can stop the node;
+//! - [`services`]: shared state, services, the JSON API and their declaration;
+//! - this file: [`run`], the loop that ties them together.
+
+pub mod error;
+pub mod queue;
+pub mod services;
+pub mod status;
+pub mod worker;
+
+use std::collections::HashMap;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use groupforward_msgs::gf_msgs::NodeStatus;
+
+use crate::config::Config;
+use crate::frame::SyncedFrame;
+use crate::graph::persist;
+use crate::transport::Transport;
+use crate::window::Keyframes;
+
+pub use error::{NodeError, Result};
+pub use queue::InputQueue;
+pub use services::{declare, instance_messages, Declared, Shared};
+pub use status::Node;
+
+/// Run the node on `transport` until `shutdown` is set; returns the last status.
+pub fn run(
+    config: &Config,
+    transport: &dyn Transport,
+    shutdown: &AtomicBool,
+) -> Result<NodeStatus> {
+    let queue = Arc::new(InputQueue::new(config.ingest.queue_depth));
+    let mut initial = Shared {
+        map_file: config.map.file.clone(),
+        hypotheses: config.semantics.hypotheses,
+        ..Shared::default()
+    };
+    if let Some(file) = config
+        .map
+        .file
+        .as_deref()
+        .filter(|_| config.map.restore_on_start)
+    {
+        let path = std::path::Path::new(file);
+        if path.exists() {
+            match persist::load(path, initial.map.params) {
+                Ok(map) => {
+                    tracing::info!("restored {} instances from {file}", map.instances.len());
+                    initial.set_map(map);
+                }
+                Err(e) => {
+                    tracing::error!("cannot restore the map from {file}: {e}; starting empty")
+                }
+            }
+        }
+    }
+    let shared = Arc::new(Mutex::new(initial));
+    let declared = declare(config, transport, &queue, &shared)?;
+    let status_publisher = transport.advertise(&declared.status)?;
+    // Every interface is declared before the (slow) model load, so peers see the node at once.
+    let (windows, worker) = worker::start_window_worker(config, &shared);
+    let mut windows = windows;
+    let mut keyframes: HashMap<String, Keyframes> = HashMap::new();
+    let mut windows_dropped = 0u64;
+    let mut model_gone = false;
+    tracing::info!(
+        subscriptions = declared.subscriptions.len(),
+        json = %declared.json_prefix,
+        "node `{}` running",
+        config.node.name
+    );
+    let mut node = Node::new(config);
+    let period = Duration::from_secs_f64(config.status.period_secs);
+    let mut next_status = Instant::now() + period;
+    let mut last = node.status(Instant::now());
+    if let Ok(mut s) = shared.lock() {
+        s.status = last.clone();
+    }
+    while !shutdown.load(Ordering::Relaxed) {
+        let (item, dropped) = queue.pop(Duration::from_millis(20));
+        node.record_dropped(&dropped);
+        if let Some((route, payload)) = item {
+            let completed = node.step(route, &payload);
+            if let Some(windows) = &windows {
+                let fresh: Vec<&SyncedFrame> = node.recent_frames().rev().take(completed).collect();
+                for frame in fresh.into_iter().rev() {
+                    let store = keyframes
+                        .entry(frame.camera_name.clone())
+                        .or_insert_with(|| Keyframes::new(config.window.clone()));
+                    if store.offer(frame) {
+                        if let Some(window) = store.take_window() {
+                            // The worker is busy with the previous window: drop this one (counted)
+                            // rather than stall ingest. A worker without a model has exited.
+                            match windows.try_send(window) {
+                                Ok(()) => {}
+                                Err(std::sync::mpsc::TrySendError::Full(_)) => {
+                                    windows_dropped += 1;
+                                    tracing::debug!(
+                                        windows_dropped,
+                                        "window pass busy; window dropped"
+                                    );
+                                }
+                                Err(std::sync::mpsc::TrySendError::Disconnected(_)) => {
+                                    model_gone = true;
+                                }
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        if model_gone {
+            windows = None;
+            model_gone = false;
+        }
+        let now = Instant::now();
+        if now >= next_status {
+            next_status = now + period;
+            last = status::publish_status(&mut node, now, status_publisher.as_ref(), &shared);
+        }
+    }
+    // Drain what already arrived so a replay's last messages are counted.
+    loop {
+        let (item, dropped) = queue.pop(Duration::ZERO);
+        node.record_dropped(&dropped);
+        match item {
+            Some((route, payload)) => {
+                node.step(route, &payload);
+            }
+            None => break,
+        }
+    }
+    // Let the worker finish the windows it has, then stop it.
+    drop(windows);
+    if let Some(worker) = worker {
+        if worker.join().is_err() {
+            tracing::error!("the window worker panicked");
+        }
+    }
+    if windows_dropped > 0 {
+        tracing::info!(windows_dropped, "windows dropped while the model was busy");
+    }
+    if !last.cameras.is_empty() || node.ingest.tf_received > 0 {
+        last = status::publish_status(
+            &mut node,
+            Instant::now(),
+            status_publisher.as_ref(),
+            &shared,
+        );
+    }
+    Ok(last)
+}
+
+#[cfg(test)]
+mod tests {
+    use std::time::{Duration, Instant};
+
+    use groupforward_msgs::cdr;
+    use groupforward_msgs::gf_msgs::{
+        Instance, ListInstancesRequest, ListInstancesResponse, MapPathRequest, MapResultResponse,
+    };
+    use groupforward_msgs::sensor_msgs::Image;
+
+    use super::*;
+    use crate::graph::{persist, SceneMap};
+    use crate::transport::MemoryTransport;
+
+    /// Run the node on an in-memory bus and wait until it answers its JSON API.
+    fn start(
+        config: &Config,
+    ) -> (
+        Arc<MemoryTransport>,
+        Arc<AtomicBool>,
+        std::thread::JoinHandle<Result<NodeStatus>>,
+    ) {
+        let bus = MemoryTransport::new();
+        let handle = bus.clone();
+        let shutdown = Arc::new(AtomicBool::new(false));
+        let runner = {
+            let (config, shutdown) = (config.clone(), shutdown.clone());
+            std::thread::spawn(move || run(&config, &handle, &shutdown))
+        };
+        let deadline = Instant::now() + Duration::from_secs(5);
+        while bus.get_json("groupforward/default/status", b"").is_err() {
+            assert!(Instant::now() < deadline, "node did not start");
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        (bus, shutdown, runner)
+    }
+
+    #[test]
+    fn run_counts_frames_serves_and_publishes_status_over_memory_transport() {
+        let mut config = Config::default();
+        config.cameras[0].depth_topic = None;
+        config.status.period_secs = 0.05;
+        let (bus, shutdown, runner) = start(&config);
+        let image = Image {
+            width: 2,
+            height: 2,
+            encoding: "rgb8".into(),
+            step: 6,
+            data: vec![0; 12],
+            ..Default::default()
+        };
+        for _ in 0..3 {
+            bus.inject("/camera/color/image_raw", &cdr::encode(&image).unwrap());
+        }
+        bus.inject("/camera/color/image_raw", b"garbage");
+        let deadline = Instant::now() + Duration::from_secs(5);
+        loop {
+            let json: serde_json::Value =
+                serde_json::from_str(&bus.get_json("groupforward/default/status", b"").unwrap())
+                    .unwrap();
+            if json["cameras"][0]["frames_received"] == 3
+                && json["cameras"][0]["frames_rejected"] == 1
+            {
+                assert_eq!(json["rejections"][0]["reason"], "malformed_cdr");
+                break;
+            }
+            assert!(
+                Instant::now() < deadline,
+                "status never showed the frames: {json}"
+            );
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        let list = bus
+            .call(
+                "/groupforward/list_instances",
+                &cdr::encode(&ListInstancesRequest::default()).unwrap(),
+            )
+            .unwrap();
+        let list: ListInstancesResponse = cdr::decode(&list).unwrap();
+        assert!(list.instances.is_empty());
+        assert!(bus.call("/groupforward/list_instances", b"bad").is_err());
+        assert!(bus.get_json("groupforward/default/nothing", b"").is_err());
+        shutdown.store(true, Ordering::Relaxed);
+        let last = runner.join().unwrap().unwrap();
+        assert_eq!(last.cameras[0].frames_received, 3);
+        let published = bus.published("/groupforward/status");
+        assert!(!published.is_empty());
+        let status: NodeStatus = cdr::decode(published.last().unwrap()).unwrap();
+        assert_eq!(status.cameras[0].name, "front");
+    }
+
+    /// A map with one instance: a small cube of Gaussians.
+    fn one_instance_map() -> SceneMap {
+        use crate::frame::WindowInstance;
+        use crate::graph::FusionParams;
+        use crate::recon::gaussians::Gaussians;
+        let mut g = Gaussians::with_dims(0, 0);
+        for i in 0..5 {
+            for j in 0..5 {
+                let p = glam::Vec3::new(2.0 + i as f32 * 0.05, j as f32 * 0.05, 0.5);
+                g.push(
+                    p,
+                    0.9,
+                    glam::Vec3::splat(0.02),
+                    glam::Quat::IDENTITY,
+                    glam::Vec3::ONE,
+                    &[],
+                    &[],
+                );
+            }
+        }
+        let mut map = SceneMap::new(FusionParams::default());
+        map.fuse(
+            vec![WindowInstance {
+                gaussians: g,
+                prototype: vec![1.0, 0.0],
+                support: 25,
+            }],
+            &[],
+            7,
+        )
+        .unwrap();
+        map
+    }
+
+    #[test]
+    fn map_services_save_load_and_restore_on_start_keeping_the_map_on_errors() {
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("map.gfmap");
+        persist::save(&one_instance_map(), &file).unwrap();
+        let mut config = Config::default();
+        config.map.file = Some(file.display().to_string());
+        let (bus, shutdown, runner) = start(&config);
+        let list = |bus: &MemoryTransport| -> Vec<Instance> {
+            let reply = bus
+                .call(
+                    "/groupforward/list_instances",
+                    &cdr::encode(&ListInstancesRequest::default()).unwrap(),
+                )
+                .unwrap();
+            cdr::decode::<ListInstancesResponse>(&reply)
+                .unwrap()
+                .instances
+        };
+        let call = |service: &str, path: &str| -> MapResultResponse {
+            let request = cdr::encode(&MapPathRequest { path: path.into() }).unwrap();
+            cdr::decode(&bus.call(service, &request).unwrap()).unwrap()
+        };
+        // Restored on start.
+        let restored = list(&bus);
+        assert_eq!(restored.len(), 1);
+        assert_eq!(restored[0].id, "inst_000001");
+        let expected = one_instance_map().instances[0].gaussians.len() as u32;
+        assert_eq!(restored[0].point_count, expected);
+        // Save elsewhere, then a corrupt file fails to load and changes nothing.
+        let copy = dir.path().join("copy.gfmap");
+        assert!(call("/groupforward/save_map", &copy.display().to_string()).success);
+        let corrupt = dir.path().join("corrupt.gfmap");
+        let mut bytes = std::fs::read(&copy).unwrap();
+        let middle = bytes.len() / 2;
+        bytes[middle] ^= 1;
+        std::fs::write(&corrupt, bytes).unwrap();
+        let failed = call("/groupforward/load_map", &corrupt.display().to_string());
+        assert!(
+            !failed.success && failed.message.contains("corrupt"),
+            "{failed:?}"
+        );
+        assert_eq!(list(&bus), restored);
+        // The configured file is the default path; the copy loads back to the same map.
+        assert!(call("/groupforward/save_map", "").success);
+        assert!(call("/groupforward/load_map", &copy.display().to_string()).success);
+        assert_eq!(list(&bus), restored);
+        assert!(bus.call("/groupforward/save_map", b"bad").is_err());
+        shutdown.store(true, Ordering::Relaxed);
+        runner.join().unwrap().unwrap();
+    }
+}

@@ -1,0 +1,305 @@
+//! What the node serves: the state shared with service handlers (the map and its instance
+//! messages), the list / get / save / load services, the JSON API, and their declaration.
+
+use std::sync::{Arc, Mutex};
+
+use groupforward_msgs::gf_msgs::{
+    GetInstanceRequest, GetInstanceResponse, Instance, ListInstancesRequest, ListInstancesResponse,
+    MapPathRequest, MapResultResponse, NodeStatus,
+};
+use groupforward_msgs::rmw_zenoh::{resolve_name, Qos};
+use groupforward_msgs::services::{GetInstance, ListInstances, LoadMap, SaveMap};
+use groupforward_msgs::vision_msgs::ObjectHypothesis;
+use groupforward_msgs::{builtin_interfaces::Time, cdr, RosMessage, RosService};
+
+use super::error::Result;
+use super::queue::InputQueue;
+use crate::config::Config;
+use crate::graph::{persist, SceneMap};
+use crate::group::semantics::Vocabulary;
+use crate::ingest::{Ingest, Route};
+use crate::transport::{Endpoint, Transport};
+
+/// State shared with service and JSON handlers, which run on transport threads.
+#[derive(Debug, Default)]
+pub struct Shared {
+    pub status: NodeStatus,
+    /// The persistent instance map (filled by window passes once the models land).
+    pub map: SceneMap,
+    /// `map` as messages, refreshed whenever the map changes.
+    pub instances: Vec<Instance>,
+    /// Default snapshot file (`map.file`).
+    pub map_file: Option<String>,
+    /// Names for instances (set once the text encoder has embedded `semantics.vocabulary`).
+    pub vocabulary: Option<Vocabulary>,
+    /// Hypotheses per instance message.
+    pub hypotheses: usize,
+}
+
+fn time_of(nanos: i64) -> Time {
+    Time::from_nanos(nanos)
+}
+
+/// The map's instances as `groupforward_msgs/Instance` (axis-aligned boxes in the map frame), named
+/// by the `hypotheses` best phrases of `vocabulary` for their semantic prototype.
+pub fn instance_messages(
+    map: &SceneMap,
+    vocabulary: Option<&Vocabulary>,
+    hypotheses: usize,
+) -> Vec<Instance> {
+    map.instances
+        .iter()
+        .map(|i| {
+            let (lo, hi) = i.bounds();
+            let (centre, size) = ((lo + hi) / 2.0, hi - lo);
+            Instance {
+                id: i.id.clone(),
+                hypotheses: vocabulary
+                    .map(|v| v.hypotheses(&i.prototype, hypotheses))
+                    .unwrap_or_default()
+                    .into_iter()
+                    .map(|(class_id, score)| ObjectHypothesis {
+                        class_id,
+                        score: f64::from(score),
+                    })
+                    .collect(),
+                pose: groupforward_msgs::geometry_msgs::Pose {
+                    position: groupforward_msgs::geometry_msgs::Point {
+                        x: f64::from(centre.x),
+                        y: f64::from(centre.y),
+                        z: f64::from(centre.z),
+                    },
+                    orientation: groupforward_msgs::geometry_msgs::Quaternion {
+                        x: 0.0,
+                        y: 0.0,
+                        z: 0.0,
+                        w: 1.0,
+                    },
+                },
+                size: groupforward_msgs::geometry_msgs::Vector3 {
+                    x: f64::from(size.x),
+                    y: f64::from(size.y),
+                    z: f64::from(size.z),
+                },
+                point_count: i.gaussians.len() as u32,
+                confidence: i.confidence,
+                first_seen: time_of(i.first_seen_nanos),
+                last_seen: time_of(i.last_seen_nanos),
+                ..Default::default()
+            }
+        })
+        .collect()
+}
+
+impl Shared {
+    /// Replace the map and refresh the instance messages.
+    pub fn set_map(&mut self, map: SceneMap) {
+        self.map = map;
+        self.refresh_instances();
+    }
+
+    /// Rebuild the instance messages after the map changed in place.
+    pub fn refresh_instances(&mut self) {
+        self.instances = instance_messages(&self.map, self.vocabulary.as_ref(), self.hypotheses);
+    }
+}
+
+fn map_path<'a>(shared: &'a Shared, requested: &'a str) -> std::result::Result<&'a str, String> {
+    if !requested.is_empty() {
+        return Ok(requested);
+    }
+    shared
+        .map_file
+        .as_deref()
+        .ok_or_else(|| "no path given and no map.file configured".to_owned())
+}
+
+fn handle_save(shared: &Mutex<Shared>, request: &[u8]) -> std::result::Result<Vec<u8>, String> {
+    let request: MapPathRequest = cdr::decode(request).map_err(|e| e.to_string())?;
+    // Serialise under the lock, write outside it: a slow disk never stalls the node loop.
+    let (path, bytes) = {
+        let s = shared.lock().map_err(|e| e.to_string())?;
+        let path = map_path(&s, &request.path).map(str::to_owned);
+        (path, persist::to_bytes(&s.map))
+    };
+    let outcome = path.and_then(|path| {
+        persist::write_atomically(std::path::Path::new(&path), &bytes)
+            .map(|()| format!("saved {} bytes to {path}", bytes.len()))
+            .map_err(|e| e.to_string())
+    });
+    map_result("save_map", outcome)
+}
+
+/// A SaveMap / LoadMap response; failures are logged too.
+fn map_result(
+    service: &str,
+    outcome: std::result::Result<String, String>,
+) -> std::result::Result<Vec<u8>, String> {
+    let response = match outcome {
+        Ok(message) => MapResultResponse {
+            success: true,
+            message,
+        },
+        Err(message) => {
+            tracing::warn!("{service} failed: {message}");
+            MapResultResponse {
+                success: false,
+                message,
+            }
+        }
+    };
+    cdr::encode(&response).map_err(|e| e.to_string())
+}
+
+fn handle_load(shared: &Mutex<Shared>, request: &[u8]) -> std::result::Result<Vec<u8>, String> {
+    let request: MapPathRequest = cdr::decode(request).map_err(|e| e.to_string())?;
+    let (path, params) = {
+        let s = shared.lock().map_err(|e| e.to_string())?;
+        (map_path(&s, &request.path).map(str::to_owned), s.map.params)
+    };
+    let loaded = path.and_then(|path| {
+        persist::load(std::path::Path::new(&path), params)
+            .map(|map| (path, map))
+            .map_err(|e| e.to_string())
+    });
+    let outcome = match loaded {
+        Ok((path, map)) => {
+            let count = map.instances.len();
+            shared.lock().map_err(|e| e.to_string())?.set_map(map);
+            Ok(format!("loaded {count} instances from {path}"))
+        }
+        // The running map is untouched on any error.
+        Err(message) => Err(message),
+    };
+    map_result("load_map", outcome)
+}
+
+fn handle_list(shared: &Mutex<Shared>, request: &[u8]) -> std::result::Result<Vec<u8>, String> {
+    let request: ListInstancesRequest = cdr::decode(request).map_err(|e| e.to_string())?;
+    let instances = shared
+        .lock()
+        .map_err(|e| e.to_string())?
+        .instances
+        .iter()
+        .filter(|i| {
+            request.label_filter.is_empty()
+                || i.hypotheses
+                    .first()
+                    .is_some_and(|h| h.class_id.contains(&request.label_filter))
+        })
+        .cloned()
+        .collect();
+    cdr::encode(&ListInstancesResponse { instances }).map_err(|e| e.to_string())
+}
+
+fn handle_get(shared: &Mutex<Shared>, request: &[u8]) -> std::result::Result<Vec<u8>, String> {
+    let request: GetInstanceRequest = cdr::decode(request).map_err(|e| e.to_string())?;
+    let found = shared
+        .lock()
+        .map_err(|e| e.to_string())?
+        .instances
+        .iter()
+        .find(|i| i.id == request.id)
+        .cloned();
+    let response = GetInstanceResponse {
+        found: found.is_some(),
+        instance: found.unwrap_or_default(),
+        ..Default::default()
+    };
+    cdr::encode(&response).map_err(|e| e.to_string())
+}
+
+fn handle_json(shared: &Mutex<Shared>, name: &str) -> std::result::Result<String, String> {
+    let shared = shared.lock().map_err(|e| e.to_string())?;
+    let value = match name {
+        "status" => serde_json::to_value(&shared.status),
+        "instances" => serde_json::to_value(&shared.instances),
+        other => {
+            return Err(format!(
+                "unknown API `{other}`; available: status, instances"
+            ))
+        }
+    };
+    value.map(|v| v.to_string()).map_err(|e| e.to_string())
+}
+
+/// The resolved names the node declares, for logs and docs.
+#[derive(Debug, Clone)]
+pub struct Declared {
+    pub subscriptions: Vec<Endpoint>,
+    pub status: Endpoint,
+    pub services: Vec<Endpoint>,
+    pub json_prefix: String,
+}
+
+/// Subscribe to the inputs, and declare the status topic, services and JSON API.
+pub fn declare(
+    config: &Config,
+    transport: &dyn Transport,
+    queue: &Arc<InputQueue>,
+    shared: &Arc<Mutex<Shared>>,
+) -> Result<Declared> {
+    let ns = &config.node.namespace;
+    let name = &config.node.name;
+    let mut subscriptions = Vec::new();
+    for (topic, route) in Ingest::routes(&config.cameras, &config.tf) {
+        let qos = match route {
+            Route::TfStatic => Qos {
+                transient_local: true,
+                depth: 1,
+                ..Qos::default()
+            },
+            Route::Tf => Qos::default(),
+            _ => Qos::sensor_data(),
+        };
+        let endpoint = Endpoint::new(&resolve_name(ns, name, &topic)?, route.type_name(), qos)?;
+        let queue = queue.clone();
+        transport.subscribe(
+            &endpoint,
+            Arc::new(move |payload| queue.push(route, payload)),
+        )?;
+        subscriptions.push(endpoint);
+    }
+    let status = Endpoint::new(
+        &resolve_name(ns, name, "~/status")?,
+        NodeStatus::TYPE_NAME,
+        Qos::default(),
+    )?;
+    let list = Endpoint::new(
+        &resolve_name(ns, name, "~/list_instances")?,
+        ListInstances::TYPE_NAME,
+        Qos::default(),
+    )?;
+    let get = Endpoint::new(
+        &resolve_name(ns, name, "~/get_instance")?,
+        GetInstance::TYPE_NAME,
+        Qos::default(),
+    )?;
+    let save = Endpoint::new(
+        &resolve_name(ns, name, "~/save_map")?,
+        SaveMap::TYPE_NAME,
+        Qos::default(),
+    )?;
+    let load = Endpoint::new(
+        &resolve_name(ns, name, "~/load_map")?,
+        LoadMap::TYPE_NAME,
+        Qos::default(),
+    )?;
+    let s = shared.clone();
+    transport.serve(&save, Arc::new(move |req| handle_save(&s, req)))?;
+    let s = shared.clone();
+    transport.serve(&load, Arc::new(move |req| handle_load(&s, req)))?;
+    let s = shared.clone();
+    transport.serve(&list, Arc::new(move |req| handle_list(&s, req)))?;
+    let s = shared.clone();
+    transport.serve(&get, Arc::new(move |req| handle_get(&s, req)))?;
+    let prefix = config.api_prefix();
+    let s = shared.clone();
+    transport.serve_json(&prefix, Arc::new(move |api, _body| handle_json(&s, api)))?;
+    Ok(Declared {
+        subscriptions,
+        status,
+        services: vec![list, get, save, load],
+        json_prefix: prefix,
+    })
+}
