@@ -46,7 +46,6 @@ import json
 import sys
 from pathlib import Path
 
-import hdbscan
 import numpy as np
 from scipy import ndimage
 import torch
@@ -56,62 +55,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from gf.data import SimDataset  # noqa: E402
 from gf.model import batch_inputs, cpu_session  # noqa: E402
 from gf.recover import model_from_file  # noqa: E402
+from gf.grouping import GROUPING, node_grouping, unit_centroids  # noqa: E402
 
-MAX_CLUSTER_POINTS = 20_000
-# min_cluster_size, min_samples, noise distance, merge distance: chosen together on the 24 selection
-# windows (README, Training), as the node's GroupingParams::default.
-GROUPING = (30, 10, 0.7, 0.4)
 PAIR_GAP = 0.15
 MIN_OBJECT_PIXELS = 50  # an object counts as seen in a window (pairs, objects found)
 ROOM_SPLIT = 0.9  # a window's room counts as split when its largest cluster holds less of it
-
-
-def unit_centroids(embeddings, labels, ids):
-    """The mean of the unit `embeddings` [N,D] per label in `ids`, renormalised to unit length."""
-    centroids = np.stack([embeddings[labels == k].mean(0) for k in ids])
-    return centroids / np.maximum(np.linalg.norm(centroids, axis=1, keepdims=True), 1e-12)
-
-
-def merge_close_clusters(sums, merge_distance):
-    """node/src/group `merge_close_clusters`: unit centroids of K ≥ 1 clusters given by their member
-    sums [K,D], joining the closest pair while it is at most `merge_distance` apart."""
-    sums = [s.astype(np.float64) for s in sums]
-    unit = lambda s: s / max(np.linalg.norm(s), 1e-12)  # noqa: E731
-    centroids = [unit(s) for s in sums]
-    while len(centroids) > 1:
-        c = np.stack(centroids)
-        distances = np.linalg.norm(c[:, None] - c[None], axis=2) + np.tril(np.full((len(c),) * 2, np.inf))
-        a, b = np.unravel_index(distances.argmin(), distances.shape)
-        if distances[a, b] > merge_distance:
-            break
-        sums[a] = sums[a] + sums[b]
-        sums[b] = sums[-1]
-        sums.pop()
-        centroids[b] = centroids[-1]
-        centroids.pop()
-        centroids[a] = unit(sums[a])
-    return np.stack(centroids)
-
-
-def node_grouping(embeddings, grouping=GROUPING):
-    """Labels per row of unit `embeddings` [N,D] as node/src/group `group` computes them; and
-    HDBSCAN's own labels on the subsample with the subsample's indices."""
-    min_cluster_size, min_samples, noise_distance, merge_distance = grouping
-    n = embeddings.shape[0]
-    stride = max(1, -(-n // MAX_CLUSTER_POINTS))
-    sample = np.arange(0, n, stride)
-    raw = hdbscan.HDBSCAN(min_cluster_size=int(min_cluster_size), min_samples=int(min_samples),
-                          allow_single_cluster=True).fit_predict(embeddings[sample].astype(np.float64))
-    clusters = np.unique(raw[raw >= 0])
-    if clusters.size == 0:
-        return np.full(n, -1), raw, sample
-    sums = [embeddings[sample][raw == k].sum(0) for k in clusters]
-    centroids = merge_close_clusters(sums, merge_distance)
-    distances = np.sqrt(np.maximum(
-        (embeddings ** 2).sum(1)[:, None] - 2 * embeddings @ centroids.T + (centroids ** 2).sum(1)[None], 0))
-    nearest = distances.argmin(1)
-    labels = np.where(distances[np.arange(n), nearest] <= noise_distance, nearest, -1)
-    return labels, raw, sample
 
 
 def identical_close_pairs(objects, truth):

@@ -293,8 +293,16 @@ mod tests {
             let encodings = ["rgb8", "bgr8", "rgba8", "bgra8", "mono8", "16UC1", "32FC1", "x"];
             let msg = Image { height: h, width: w, step, encoding: encodings[enc].into(), is_bigendian: big,
                               data: vec![7; len], ..Default::default() };
-            let _ = decode_image(&msg, 32);
-            let _ = decode_depth(&msg, 32);
+            // Either a whole image or one of the named reasons, never a panic or a short buffer.
+            let expected = [Reject::BadDimensions, Reject::SizeMismatch, Reject::UnknownEncoding];
+            match decode_image(&msg, 32) {
+                Ok(image) => proptest::prop_assert_eq!(image.data.len(), (w * h * 3) as usize),
+                Err(e) => proptest::prop_assert!(expected.contains(&e.reason), "{:?}", e),
+            }
+            match decode_depth(&msg, 32) {
+                Ok(depth) => proptest::prop_assert_eq!(depth.metres.len(), (w * h) as usize),
+                Err(e) => proptest::prop_assert!(expected.contains(&e.reason), "{:?}", e),
+            }
         }
     }
 }

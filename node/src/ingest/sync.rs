@@ -480,19 +480,90 @@ mod tests {
         );
     }
 
+    #[test]
+    fn frames_without_camera_info_expire_with_a_reason() {
+        let config = no_depth_config();
+        let mut ingest = ingest_for(&config);
+        for stamp in [0, 1_000_000_000] {
+            ingest.handle(
+                Route::Image(0),
+                &cdr::encode(&image(4, 2, "rgb8", 3, stamp)).unwrap(),
+            );
+        }
+        assert_eq!(ingest.rejections.count(Reject::NoCameraInfo), 1);
+        assert_eq!(ingest.rejections.total(), 1);
+        assert_eq!(ingest.camera_counters(0).unwrap().rejected, 1);
+    }
+
+    #[test]
+    fn frames_without_depth_expire_with_a_reason_and_never_sync_without_it() {
+        let config = Config::default();
+        let mut ingest = ingest_for(&config);
+        ingest.handle(Route::CameraInfo(0), &cdr::encode(&info(4, 2)).unwrap());
+        let pose = |t| cdr::encode(&tf("map", "cam_optical", t, 0.0, ID)).unwrap();
+        ingest.handle(Route::Tf, &pose(0));
+        ingest.handle(
+            Route::Image(0),
+            &cdr::encode(&image(4, 2, "rgb8", 3, 0)).unwrap(),
+        );
+        // Pose and info are there; only depth is missing, so nothing may sync.
+        assert!(ingest.handle(Route::Tf, &pose(100_000_000)).is_empty());
+        // A depth image of another size does not match either.
+        let mut small = image(2, 2, "32FC1", 4, 0);
+        small.data = [1.0f32; 4].iter().flat_map(|v| v.to_le_bytes()).collect();
+        assert!(ingest
+            .handle(Route::Depth(0), &cdr::encode(&small).unwrap())
+            .is_empty());
+        ingest.handle(Route::Tf, &pose(1_000_000_000));
+        assert_eq!(ingest.rejections.count(Reject::NoMatchingDepth), 1);
+        assert_eq!(ingest.rejections.total(), 1);
+        assert_eq!(ingest.camera_counters(0).unwrap().synced, 0);
+    }
+
     proptest::proptest! {
         #[test]
-        fn any_bytes_on_any_route_never_panic(bytes in proptest::collection::vec(proptest::prelude::any::<u8>(), 0..256),
-                                              route in 0usize..5) {
+        fn any_bytes_on_any_route_are_accounted_for_once(bytes in proptest::collection::vec(proptest::prelude::any::<u8>(), 0..256),
+                                                         route in 0usize..6, framed in proptest::prelude::any::<bool>()) {
             let config = Config::default();
             let mut ingest = ingest_for(&config);
-            let route = [Route::Image(0), Route::CameraInfo(0), Route::Depth(0), Route::Tf, Route::TfStatic][route];
-            let _ = ingest.handle(route, &bytes);
-            let mut framed = groupforward_msgs::cdr::ENCAPSULATION_CDR_LE.to_vec();
-            framed.extend_from_slice(&bytes);
-            let _ = ingest.handle(route, &framed);
-            let _ = ingest.handle(Route::CompressedImage(0), &framed);
+            let route = [Route::Image(0), Route::CompressedImage(0), Route::CameraInfo(0), Route::Depth(0), Route::Tf,
+                         Route::TfStatic][route];
+            let payload = if framed {
+                let mut with_header = groupforward_msgs::cdr::ENCAPSULATION_CDR_LE.to_vec();
+                with_header.extend_from_slice(&bytes);
+                with_header
+            } else {
+                bytes
+            };
+            let frames = ingest.handle(route, &payload);
+            proptest::prop_assert!(frames.is_empty(), "nothing can sync from one message");
+            let counters = ingest.camera_counters(0).unwrap().clone();
+            match route {
+                // A colour image is either waiting (received) or rejected, exactly once.
+                Route::Image(_) | Route::CompressedImage(_) => {
+                    proptest::prop_assert_eq!(counters.received + counters.rejected, 1);
+                    proptest::prop_assert_eq!(ingest.rejections.total(), counters.rejected);
+                }
+                // Camera info and depth are kept or rejected once; neither counts as a frame.
+                Route::CameraInfo(_) | Route::Depth(_) => {
+                    proptest::prop_assert_eq!(counters.received, 0);
+                    proptest::prop_assert!(ingest.rejections.total() <= 1);
+                    proptest::prop_assert_eq!(ingest.rejections.total(), counters.rejected);
+                }
+                // Each transform of a decodable message is accepted or rejected once; an
+                // undecodable message is one rejection.
+                Route::Tf | Route::TfStatic => {
+                    let seen = ingest.tf_received + ingest.tf_rejected;
+                    match cdr::decode::<TFMessage>(&payload) {
+                        Ok(message) => proptest::prop_assert_eq!(seen, message.transforms.len() as u64),
+                        Err(_) => {
+                            proptest::prop_assert_eq!((ingest.tf_received, ingest.tf_rejected), (0, 1));
+                            proptest::prop_assert_eq!(ingest.rejections.count(Reject::MalformedCdr), 1);
+                        }
+                    }
+                    proptest::prop_assert_eq!(ingest.rejections.total(), ingest.tf_rejected);
+                }
+            }
         }
-
     }
 }

@@ -187,4 +187,94 @@ mod tests {
             Err(LookupError::Disconnected(_))
         ));
     }
+
+    fn at_x(x: f64) -> Rigid {
+        Rigid::new(glam::DQuat::IDENTITY, DVec3::new(x, 0.0, 0.0))
+    }
+
+    #[test]
+    fn out_of_order_samples_are_sorted_and_interpolated() {
+        let mut buffer = TfBuffer::new(10.0);
+        for (stamp, x) in [(2_000, 2.0), (1_000, 1.0), (3_000, 3.0), (2_000, 2.5)] {
+            buffer.insert("map".into(), "base".into(), stamp, at_x(x), false);
+        }
+        // The second sample at 2,000 replaced the first.
+        let x_at = |stamp| {
+            buffer
+                .lookup("map", "base", stamp, 0)
+                .unwrap()
+                .translation
+                .x
+        };
+        assert!((x_at(1_500) - 1.75).abs() < 1e-12);
+        assert!((x_at(2_500) - 2.75).abs() < 1e-12);
+        assert!((x_at(2_000) - 2.5).abs() < 1e-12);
+    }
+
+    #[test]
+    fn rotation_is_interpolated_on_the_sphere() {
+        let mut buffer = TfBuffer::new(10.0);
+        let yaw = |degrees: f64| {
+            Rigid::new(
+                glam::DQuat::from_rotation_z(degrees.to_radians()),
+                DVec3::ZERO,
+            )
+        };
+        buffer.insert("map".into(), "base".into(), 0, yaw(0.0), false);
+        buffer.insert("map".into(), "base".into(), 1_000, yaw(90.0), false);
+        let halfway = buffer.lookup("map", "base", 500, 0).unwrap();
+        let x_axis = halfway.rotation * DVec3::X;
+        let angle = x_axis.y.atan2(x_axis.x).to_degrees();
+        assert!((angle - 45.0).abs() < 1e-9, "{angle}");
+        assert!((halfway.rotation.length() - 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn extrapolation_is_allowed_within_the_tolerance_only() {
+        let mut buffer = TfBuffer::new(10.0);
+        buffer.insert("map".into(), "base".into(), 1_000, at_x(1.0), false);
+        buffer.insert("map".into(), "base".into(), 2_000, at_x(2.0), false);
+        // Just after the newest sample: its value, within the tolerance; beyond it: not yet.
+        let after = buffer.lookup("map", "base", 2_050, 100).unwrap();
+        assert_eq!(after.translation.x, 2.0);
+        assert_eq!(
+            buffer.lookup("map", "base", 2_150, 100),
+            Err(LookupError::NotYet)
+        );
+        // Just before the oldest: its value within the tolerance; beyond it: too old.
+        assert_eq!(
+            buffer
+                .lookup("map", "base", 950, 100)
+                .unwrap()
+                .translation
+                .x,
+            1.0
+        );
+        assert_eq!(
+            buffer.lookup("map", "base", 850, 100),
+            Err(LookupError::TooOld)
+        );
+    }
+
+    #[test]
+    fn history_is_bounded_and_older_stamps_are_too_old() {
+        let mut buffer = TfBuffer::new(1.0);
+        for second in 0..10i64 {
+            buffer.insert(
+                "map".into(),
+                "base".into(),
+                second * 1_000_000_000,
+                at_x(second as f64),
+                false,
+            );
+        }
+        assert_eq!(buffer.newest_nanos(), Some(9_000_000_000));
+        // Samples older than one second before the newest are gone.
+        assert_eq!(
+            buffer.lookup("map", "base", 2_000_000_000, 0),
+            Err(LookupError::TooOld)
+        );
+        let recent = buffer.lookup("map", "base", 8_500_000_000, 0).unwrap();
+        assert!((recent.translation.x - 8.5).abs() < 1e-9);
+    }
 }

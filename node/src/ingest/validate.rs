@@ -137,4 +137,21 @@ mod tests {
             Reject::NonFiniteTransform
         );
     }
+
+    #[test]
+    fn transforms_with_an_empty_frame_id_are_rejected() {
+        for (parent, child) in [("", "cam"), ("map", "")] {
+            let message = tf(parent, child, 0, 0.0, ID);
+            assert_eq!(
+                validate_transform(&message.transforms[0])
+                    .unwrap_err()
+                    .reason,
+                Reject::EmptyFrameId
+            );
+        }
+        // tf2 drops a leading slash: `/map` is `map`.
+        let (parent, child, _, _) =
+            validate_transform(&tf("/map", "/cam", 0, 0.0, ID).transforms[0]).unwrap();
+        assert_eq!((parent.as_str(), child.as_str()), ("map", "cam"));
+    }
 }

@@ -144,3 +144,32 @@ pub(super) fn publish_status(
     }
     status
 }
+
+#[cfg(test)]
+mod tests {
+    use std::time::Duration;
+
+    use super::*;
+    use crate::node::queue::InputQueue;
+
+    #[test]
+    fn messages_the_full_queue_dropped_are_counted_and_reported() {
+        let mut config = Config::default();
+        config.cameras[0].depth_topic = None;
+        let mut node = Node::new(&config);
+        let queue = InputQueue::new(1);
+        queue.push(Route::Image(0), vec![1]);
+        queue.push(Route::Tf, vec![2]);
+        queue.push(Route::Image(0), vec![3]);
+        let (item, dropped) = queue.pop(Duration::ZERO);
+        assert_eq!(item.map(|(route, _)| route), Some(Route::Image(0)));
+        node.record_dropped(&dropped);
+        assert_eq!(node.ingest.rejections.count(Reject::QueueOverflow), 2);
+        assert_eq!(node.ingest.tf_rejected, 1);
+        let status = node.status(Instant::now());
+        assert_eq!(status.cameras[0].frames_rejected, 1);
+        assert_eq!(status.rejections.len(), 1);
+        assert_eq!(status.rejections[0].reason, "queue_overflow");
+        assert_eq!(status.rejections[0].count, 2);
+    }
+}

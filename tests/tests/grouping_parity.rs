@@ -1,0 +1,122 @@
+#![allow(clippy::unwrap_used)]
+//! The Python copy of the node's grouping (`train/gf/grouping.py`, which scores every model in
+//! `train/eval_recon.py` and so every ARI figure of the README) against the Rust `group()`, on
+//! the same fixed embeddings: the same labels up to a renaming of the clusters, noise included.
+//! Runs the project's test venv (`make setup`), whose `hdbscan` package is the reference.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use groupforward::group::{group, GroupingParams};
+
+fn root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+/// Unit 8-d embeddings: seven tight clusters of different sizes on the sphere, two of them 0.29
+/// apart (one instance split in two density modes: the merge step must join them), and scattered
+/// points far from every cluster (noise by the distance threshold). A fixed LCG keeps them the same
+/// everywhere.
+fn embeddings() -> Vec<f32> {
+    let mut state = 0x2545_f491_4f6c_dd1du64;
+    let mut uniform = move || {
+        state = state
+            .wrapping_mul(6_364_136_223_846_793_005)
+            .wrapping_add(1_442_695_040_888_963_407);
+        ((state >> 11) as f64 / (1u64 << 53) as f64) as f32
+    };
+    let unit = |v: Vec<f32>| {
+        let n = v.iter().map(|x| x * x).sum::<f32>().sqrt();
+        v.into_iter().map(|x| x / n).collect::<Vec<f32>>()
+    };
+    let mut centres: Vec<Vec<f32>> = (0..6)
+        .map(|k| {
+            unit(
+                (0..8)
+                    .map(|d| if d == k { 1.0 } else { 0.1 * d as f32 })
+                    .collect(),
+            )
+        })
+        .collect();
+    let mut twin = centres[0].clone();
+    twin[7] += 0.6;
+    centres.push(unit(twin));
+    let mut out = Vec::new();
+    for (k, centre) in centres.iter().enumerate() {
+        for _ in 0..(120 + 60 * k) {
+            let point: Vec<f32> = centre
+                .iter()
+                .map(|c| c + 0.03 * (uniform() - 0.5))
+                .collect();
+            out.extend(unit(point));
+        }
+    }
+    for _ in 0..40 {
+        out.extend(unit((0..8).map(|_| uniform() - 0.5).collect()));
+    }
+    out
+}
+
+#[test]
+fn the_python_grouping_in_train_gives_the_node_s_labels() {
+    let points = embeddings();
+    let rust = group(&points, 8, &GroupingParams::default()).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("embeddings.f32");
+    std::fs::write(
+        &file,
+        points
+            .iter()
+            .flat_map(|v| v.to_le_bytes())
+            .collect::<Vec<u8>>(),
+    )
+    .unwrap();
+    let script = format!(
+        "import sys, json, numpy as np\n\
+         sys.path.insert(0, {train:?})\n\
+         from gf.grouping import node_grouping\n\
+         e = np.fromfile({file:?}, dtype='<f4').reshape(-1, 8)\n\
+         print(json.dumps(node_grouping(e)[0].tolist()))\n",
+        train = root().join("train").display().to_string(),
+        file = file.display().to_string(),
+    );
+    let python = root().join(".venv/bin/python");
+    let output = Command::new(&python)
+        .arg("-c")
+        .arg(script)
+        .output()
+        .unwrap_or_else(|e| panic!("{}: {e} (run `make setup`)", python.display()));
+    assert!(
+        output.status.success(),
+        "{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    let python_labels: Vec<i64> = serde_json::from_slice(&output.stdout).unwrap();
+    assert_eq!(python_labels.len(), rust.labels.len());
+    // One bijection between the two label sets, with noise (-1) mapped to noise.
+    let mut forward: HashMap<i32, i64> = HashMap::new();
+    let mut backward: HashMap<i64, i32> = HashMap::new();
+    for (&r, &p) in rust.labels.iter().zip(&python_labels) {
+        assert_eq!(
+            *forward.entry(r).or_insert(p),
+            p,
+            "Rust label {r} is two Python labels"
+        );
+        assert_eq!(
+            *backward.entry(p).or_insert(r),
+            r,
+            "Python label {p} is two Rust labels"
+        );
+    }
+    assert_eq!(forward.get(&-1), Some(&-1), "noise is noise in both");
+    // The fixture exercises what it claims: six instances after the twin modes merge, and noise.
+    assert_eq!(
+        rust.centroids.len(),
+        6,
+        "{} instances",
+        rust.centroids.len()
+    );
+    let noise = rust.labels.iter().filter(|&&l| l < 0).count();
+    assert!((20..=40).contains(&noise), "{noise} noise points");
+}
