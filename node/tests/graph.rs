@@ -286,6 +286,155 @@ fn graph_nodes_and_edges_carry_geometry_and_visibility() {
     );
 }
 
+/// A solid box of Gaussians on a 2.5 cm grid, `half` its half sizes (multiples of 1.25 cm).
+fn cuboid(center: Vec3, half: Vec3) -> Gaussians {
+    let mut g = Gaussians::with_dims(0, 0);
+    let steps = (2.0 * half / 0.025).round();
+    for i in 0..=steps.x as i32 {
+        for j in 0..=steps.y as i32 {
+            for k in 0..=steps.z as i32 {
+                let p = center - half + Vec3::new(i as f32, j as f32, k as f32) * 0.025;
+                g.push(
+                    p,
+                    0.9,
+                    Vec3::splat(0.015),
+                    Quat::IDENTITY,
+                    Vec3::splat(0.5),
+                    &[],
+                    &[],
+                );
+            }
+        }
+    }
+    g
+}
+
+#[test]
+fn graph_attributes_of_objects_of_different_sizes_match_a_hand_computation() {
+    // A 0.4 m cube and a 0.6 x 0.3 x 0.2 m slab farther away, overlapping in the image. A voxel
+    // finer than the grid keeps every Gaussian where it was put, so boxes are exact.
+    let params = FusionParams {
+        voxel: 0.01,
+        ..FusionParams::default()
+    };
+    let mut map = SceneMap::new(params);
+    let (cube_center, cube_half) = (Vec3::new(3.0, 0.0, 0.0), Vec3::splat(0.2));
+    let (slab_center, slab_half) = (Vec3::new(5.0, 0.3, 0.3), Vec3::new(0.3, 0.15, 0.1));
+    let window = [(cube_center, cube_half), (slab_center, slab_half)]
+        .into_iter()
+        .enumerate()
+        .map(|(k, (center, half))| WindowInstance {
+            gaussians: cuboid(center, half),
+            prototype: if k == 0 {
+                CHAIR.to_vec()
+            } else {
+                TABLE.to_vec()
+            },
+            support: 100,
+        })
+        .collect();
+    let eye = keyframe(DVec3::ZERO, 1);
+    map.fuse(window, &[view(DVec3::ZERO, 1, 10.0)], 1).unwrap();
+    let graph = map.graph(1, 10.0).unwrap();
+    let (cube, slab) = (&graph.nodes[0], &graph.nodes[1]);
+    // Volumes and extents: 0.4^3 = 0.064 and 0.6 * 0.3 * 0.2 = 0.036 m^3.
+    assert!((cube.volume - 0.064).abs() < 1e-5, "{}", cube.volume);
+    assert!((slab.volume - 0.036).abs() < 1e-5, "{}", slab.volume);
+    assert!((Vec3::from_array(slab.extent) - Vec3::new(0.6, 0.3, 0.2)).length() < 1e-5);
+    let edge = &graph.edges[0];
+    assert_eq!((edge.source, edge.target), (0, 1));
+    assert!(
+        (edge.size_ratio - 0.064 / 0.036).abs() < 1e-4,
+        "{}",
+        edge.size_ratio
+    );
+    assert!((edge.height_difference - -0.3).abs() < 1e-5);
+    let expected_distance = (4.0f32 + 0.09 + 0.09).sqrt();
+    assert!((edge.distance - expected_distance).abs() < 1e-5);
+    // Projected boxes by the pinhole formula on the box corners (optical x = -world y, optical
+    // y = -world z, depth = world x): u = cx + f * x / z, v = cy + f * y / z.
+    let camera = eye.camera;
+    let project_box = |center: Vec3, half: Vec3| {
+        let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+        for corner in 0..8 {
+            let sign = |bit: i32| if corner & bit == 0 { -1.0 } else { 1.0 };
+            let p = center + half * Vec3::new(sign(1), sign(2), sign(4));
+            let (x, y, z) = (-f64::from(p.y), -f64::from(p.z), f64::from(p.x));
+            let (u, v) = (camera.cx + camera.fx * x / z, camera.cy + camera.fy * y / z);
+            lo = [lo[0].min(u), lo[1].min(v)];
+            hi = [hi[0].max(u), hi[1].max(v)];
+        }
+        [lo[0], lo[1], hi[0], hi[1]]
+    };
+    let (a, b) = (
+        project_box(cube_center, cube_half),
+        project_box(slab_center, slab_half),
+    );
+    for (node, expected) in [(cube, a), (slab, b)] {
+        let bbox = node.views[0].bbox.unwrap();
+        for (got, want) in bbox.iter().zip(expected) {
+            assert!(
+                (f64::from(*got) - want).abs() < 1e-3,
+                "{bbox:?} vs {expected:?}"
+            );
+        }
+    }
+    let area = |r: [f64; 4]| (r[2] - r[0]) * (r[3] - r[1]);
+    let intersection =
+        (a[2].min(b[2]) - a[0].max(b[0])).max(0.0) * (a[3].min(b[3]) - a[1].max(b[1])).max(0.0);
+    let iou = intersection / (area(a) + area(b) - intersection);
+    assert!(iou > 0.05, "the fixture overlaps in the image: {iou}");
+    let (dx, dy) = (
+        (b[0] + b[2] - a[0] - a[2]) / 2.0,
+        (b[1] + b[3] - a[1] - a[3]) / 2.0,
+    );
+    let seen = edge.views[0];
+    assert!((f64::from(seen.overlap.unwrap()) - iou).abs() < 1e-4);
+    assert!((f64::from(seen.distance.unwrap()) - dx.hypot(dy)).abs() < 1e-3);
+    assert!((f64::from(seen.direction.unwrap()) - dy.atan2(dx)).abs() < 1e-4);
+    // Two pixels wide at 5 m in this 64x48 view, the slab lies almost all behind the cube.
+    assert!(slab.views[0].visibility < cube.views[0].visibility);
+}
+
+#[test]
+fn a_window_spanning_two_instances_folds_the_younger_into_the_older() {
+    let mut map = SceneMap::new(FusionParams::default());
+    // Two parts of one table seen apart (a 10 cm gap: too far to associate), in two windows.
+    let first = map
+        .fuse(vec![instance(Vec3::new(3.0, 0.0, 0.0), TABLE)], &[], 1)
+        .unwrap();
+    let second = map
+        .fuse(vec![instance(Vec3::new(3.0, 0.5, 0.0), TABLE)], &[], 2)
+        .unwrap();
+    assert_eq!((first.born, second.born), (1, 1));
+    assert_eq!(map.instances.len(), 2);
+    let before: usize = map.instances.iter().map(|i| i.gaussians.len()).sum();
+    // Then the whole table in one view: both pass the gate, one is matched, the other is a
+    // duplicate and folds into the older instance, whichever was matched.
+    let whole = WindowInstance {
+        gaussians: cuboid(Vec3::new(3.0, 0.25, 0.0), Vec3::new(0.2, 0.45, 0.2)),
+        prototype: TABLE.to_vec(),
+        support: 300,
+    };
+    let third = map.fuse(vec![whole], &[], 3).unwrap();
+    assert_eq!(
+        third.absorbed,
+        [("inst_000002".to_owned(), "inst_000001".to_owned())]
+    );
+    assert_eq!(third.assigned, ["inst_000001"]);
+    assert_eq!(map.instances.len(), 1);
+    let table = &map.instances[0];
+    assert_eq!(table.id, "inst_000001");
+    assert_eq!((table.first_seen_nanos, table.last_seen_nanos), (1, 3));
+    assert_eq!(table.observations, 3);
+    assert!(table.gaussians.len() >= before);
+    let (lo, hi) = table.bounds();
+    assert!(
+        (lo.y - -0.2).abs() < 0.05 && (hi.y - 0.7).abs() < 0.05,
+        "{lo} {hi}"
+    );
+}
+
 fn sample_map() -> SceneMap {
     let mut map = SceneMap::new(FusionParams::default());
     map.fuse(

@@ -329,6 +329,30 @@ mod tests {
             "{failed:?}"
         );
         assert_eq!(list(&bus), restored);
+        // Loading another map replaces the running one; loading the copy brings this one back.
+        let mut other = one_instance_map();
+        let mut far = other.instances[0].clone();
+        far.gaussians.means.iter_mut().for_each(|m| m.x += 3.0);
+        other
+            .fuse(
+                vec![crate::frame::WindowInstance {
+                    gaussians: far.gaussians,
+                    prototype: vec![1.0, 0.0],
+                    support: 25,
+                }],
+                &[],
+                9,
+            )
+            .unwrap();
+        assert_eq!(other.instances.len(), 2);
+        let other_file = dir.path().join("other.gfmap");
+        persist::save(&other, &other_file).unwrap();
+        let reply = call("/groupforward/load_map", &other_file.display().to_string());
+        assert!(reply.success, "{reply:?}");
+        let replaced = list(&bus);
+        assert_eq!(replaced.len(), 2);
+        assert_eq!(replaced[1].id, "inst_000002");
+        assert_ne!(replaced, restored);
         // The configured file is the default path; the copy loads back to the same map.
         assert!(call("/groupforward/save_map", "").success);
         assert!(call("/groupforward/load_map", &copy.display().to_string()).success);

@@ -303,3 +303,92 @@ pub fn declare(
         json_prefix: prefix,
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn named(id: &str, best: &str) -> Instance {
+        Instance {
+            id: id.into(),
+            hypotheses: vec![
+                ObjectHypothesis {
+                    class_id: best.into(),
+                    score: 0.7,
+                },
+                ObjectHypothesis {
+                    class_id: "table".into(),
+                    score: 0.2,
+                },
+            ],
+            ..Default::default()
+        }
+    }
+
+    fn shared() -> Mutex<Shared> {
+        Mutex::new(Shared {
+            instances: vec![
+                named("inst_000001", "chair"),
+                named("inst_000002", "armchair"),
+                named("inst_000003", "lamp"),
+            ],
+            ..Shared::default()
+        })
+    }
+
+    fn list(shared: &Mutex<Shared>, filter: &str) -> Vec<String> {
+        let request = cdr::encode(&ListInstancesRequest {
+            label_filter: filter.into(),
+        })
+        .unwrap();
+        let reply: ListInstancesResponse =
+            cdr::decode(&handle_list(shared, &request).unwrap()).unwrap();
+        reply.instances.into_iter().map(|i| i.id).collect()
+    }
+
+    #[test]
+    fn list_filters_by_the_best_label_only() {
+        let shared = shared();
+        assert_eq!(list(&shared, "").len(), 3);
+        // A substring of the best hypothesis: both chairs; `table` is only a second hypothesis.
+        assert_eq!(list(&shared, "chair"), ["inst_000001", "inst_000002"]);
+        assert_eq!(list(&shared, "lamp"), ["inst_000003"]);
+        assert!(list(&shared, "table").is_empty());
+    }
+
+    #[test]
+    fn get_finds_by_id_and_says_when_it_does_not() {
+        let shared = shared();
+        let get = |id: &str| -> GetInstanceResponse {
+            let request = cdr::encode(&GetInstanceRequest { id: id.into() }).unwrap();
+            cdr::decode(&handle_get(&shared, &request).unwrap()).unwrap()
+        };
+        let found = get("inst_000003");
+        assert!(found.found);
+        assert_eq!(found.instance.hypotheses[0].class_id, "lamp");
+        let missing = get("inst_000042");
+        assert!(!missing.found);
+        assert!(missing.instance.id.is_empty());
+        assert!(handle_get(&shared, b"garbage").is_err());
+    }
+
+    #[test]
+    fn the_json_api_serves_instances_and_status_and_names_what_it_serves() {
+        let shared = shared();
+        let instances: serde_json::Value =
+            serde_json::from_str(&handle_json(&shared, "instances").unwrap()).unwrap();
+        let ids: Vec<&str> = instances
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|i| i["id"].as_str().unwrap())
+            .collect();
+        assert_eq!(ids, ["inst_000001", "inst_000002", "inst_000003"]);
+        assert_eq!(instances[2]["hypotheses"][0]["class_id"], "lamp");
+        let status: serde_json::Value =
+            serde_json::from_str(&handle_json(&shared, "status").unwrap()).unwrap();
+        assert!(status["cameras"].is_array());
+        let unknown = handle_json(&shared, "graph").unwrap_err();
+        assert!(unknown.contains("status, instances"), "{unknown}");
+    }
+}
