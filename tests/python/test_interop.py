@@ -8,6 +8,7 @@ import time
 import numpy as np
 import zenoh
 from conftest import wait_until
+from service_hashes import ADD_TWO_INTS, add_two_ints_hash, service_hash
 from rosbags.rosbag2 import StoragePlugin, Writer
 from zenoh.ext import Int64, z_deserialize, z_serialize
 
@@ -128,6 +129,19 @@ def test_liveliness_tokens_follow_rmw_zenoh(node, ts):
     assert any(re.fullmatch(pub, t) for t in tokens), tokens
     assert any('/SS/%/%/groupforward/%groupforward%list_instances/groupforward_msgs::srv::dds_::ListInstances_/RIHS01_'
                in t for t in tokens), tokens
+
+
+def test_service_type_hashes_match_an_independent_computation(node, ts):
+    """The node's four services announce the RIHS01 hash that rosbags' type-description hashing gives
+    (service_hashes.py, itself checked against the hash ROS 2 publishes for AddTwoInts)."""
+    assert add_two_ints_hash() == ADD_TWO_INTS
+    tokens = [str(reply.ok.key_expr) for reply in node.session.liveliness().get('@ros2_lv/0/**', timeout=3)
+              if reply.ok is not None and '/SS/' in str(reply.ok.key_expr)]
+    for service, name in [('list_instances', 'ListInstances'), ('get_instance', 'GetInstance'),
+                          ('save_map', 'SaveMap'), ('load_map', 'LoadMap')]:
+        expected = service_hash(ts, f'groupforward_msgs/srv/{name}')
+        token = next(t for t in tokens if f'%groupforward%{service}/' in t)
+        assert f'/groupforward_msgs::srv::dds_::{name}_/{expected}/' in token, (token, expected)
 
 
 def test_service_call_and_json_api_from_python(node, ts):
