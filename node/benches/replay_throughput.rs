@@ -76,7 +76,7 @@ fn replay_to_node(c: &mut Criterion) {
                     let (item, dropped) = queue.pop(Duration::from_secs(5));
                     assert!(dropped.is_empty(), "queue dropped input");
                     let (route, payload): (Route, Vec<u8>) = item.expect("replayed frames arrive");
-                    synced += node.step(route, &payload);
+                    synced += node.step(route, &payload).synced;
                 }
                 total += start.elapsed();
             }
@@ -96,7 +96,7 @@ fn replay_to_node(c: &mut Criterion) {
     group.bench_function("ingest_only", |b| {
         b.iter(|| {
             let mut node = Node::new(&config);
-            let synced: usize = messages.iter().map(|(r, p)| node.step(*r, p)).sum();
+            let synced: usize = messages.iter().map(|(r, p)| node.step(*r, p).synced).sum();
             assert_eq!(synced, FRAMES as usize);
         })
     });

@@ -20,12 +20,14 @@
 //! | [`config`] | assembles the stages' sections into the node's YAML config |
 //! | [`node`] | the loop: input queue, window worker, services, status |
 //! | [`replay`] | publish a rosbag2 MCAP bag as a live robot would |
+//! | [`eval`] | sim scenes through the node's stages, the map scored against ground truth |
 //! | [`demo`] | sim scene → bag → replay → node → queries, in one process over an embedded zenoh peer |
 //!
 //! The command line (`src/cli/`, one file per subcommand) is the binary's, not the library's.
 
 pub mod config;
 pub mod demo;
+pub mod eval;
 pub mod frame;
 pub mod graph;
 pub mod group;

@@ -11,11 +11,16 @@ use std::collections::VecDeque;
 use serde::{Deserialize, Serialize};
 
 use crate::frame::{Keyframe, SyncedFrame, WindowInstance, WindowView};
-use crate::group::semantics::{prototypes, LabelledView};
+use crate::group::cleaning::{flying_pixels, split_components, CleaningParams};
+use crate::group::semantics::{prototypes, LabelledView, SemanticsSection, Vocabulary};
 use crate::group::{group, GroupError, GroupingParams};
-use crate::model::reconstruction::{lifted_pixels, resized_camera, ReconstructionModel, View};
+use crate::model::manifest::InputMode;
+use crate::model::reconstruction::{
+    lifted_pixels, resized_camera, use_sensor_depth, ReconstructionModel, View,
+};
 use crate::model::semantic::{DenseFeatures, SemanticModel};
-use crate::model::ModelError;
+use crate::model::text::TextEncoder;
+use crate::model::{ModelError, ModelsSection};
 use crate::recon::gaussians::Gaussians;
 
 #[derive(Debug, thiserror::Error)]
@@ -145,18 +150,58 @@ pub fn window_pass(
             world_from_camera: f.world_from_camera,
         })
         .collect();
-    let prediction = model.predict(&views)?;
+    let mut prediction = model.predict(&views)?;
+    // RGB-D: geometry from the depth camera (the eval's recall at IoU 0.5 doubles against the
+    // model's own depth), instances from the model.
+    if model.mode() == InputMode::Rgbd {
+        use_sensor_depth(&mut prediction, &views);
+    }
     let gaussians = model.to_gaussians(&prediction, &views)?;
     let grouped = group(
         &gaussians.embeddings,
         gaussians.embedding_dim.max(1),
         grouping,
     )?;
-    let clusters = grouped.centroids.len();
+    let (w, h) = (prediction.width, prediction.height);
+    let pixels = lifted_pixels(&prediction);
+    // Map hygiene: no flying pixels or transparent Gaussians in objects, and a cluster that falls
+    // apart in space becomes its parts.
+    let cleaning = CleaningParams::default();
+    let flying = flying_pixels(&prediction.depth, w, h, cleaning.flying_ratio);
+    let mut labels = grouped.labels;
+    for (i, label) in labels.iter_mut().enumerate() {
+        let at_edge = pixels.get(i).is_none_or(|&p| flying[p]);
+        if at_edge || gaussians.opacities[i] < cleaning.min_opacity {
+            *label = -1;
+        }
+    }
+    let clusters = split_components(
+        &mut labels,
+        &gaussians.means,
+        cleaning.cell,
+        cleaning.min_points,
+    );
+    let (mut instance_prototypes, mut semantics_error) = (Vec::new(), None);
+    if let Some(semantic) = semantic {
+        match frames
+            .iter()
+            .map(|f| semantic.features(&f.rgb))
+            .collect::<Result<Vec<DenseFeatures>, _>>()
+        {
+            Err(e) => semantics_error = Some(e.to_string()),
+            Ok(features) => {
+                let size = (w, h);
+                match instance_prototypes_of(&features, &pixels, &labels, size, clusters) {
+                    Ok(found) => instance_prototypes = found,
+                    Err(e) => semantics_error = Some(e.to_string()),
+                }
+            }
+        }
+    }
     let mut per_instance: Vec<Gaussians> =
         (0..clusters).map(|_| Gaussians::with_dims(0, 0)).collect();
     let mut noise = 0;
-    for (i, &label) in grouped.labels.iter().enumerate() {
+    for (i, &label) in labels.iter().enumerate() {
         let Ok(k) = usize::try_from(label) else {
             noise += 1;
             continue;
@@ -172,26 +217,6 @@ pub fn window_pass(
         );
     }
     let (w, h) = (prediction.width, prediction.height);
-    let (mut instance_prototypes, mut semantics_error) = (Vec::new(), None);
-    if let Some(semantic) = semantic {
-        let pixels = lifted_pixels(&prediction);
-        if pixels.len() != grouped.labels.len() {
-            semantics_error = Some(format!(
-                "{} labels for {} lifted pixels",
-                grouped.labels.len(),
-                pixels.len()
-            ));
-        } else {
-            let mut pixel_labels = vec![-1i32; prediction.views * w * h];
-            for (&pixel, &label) in pixels.iter().zip(&grouped.labels) {
-                pixel_labels[pixel] = label;
-            }
-            match instance_semantics(semantic, frames, &pixel_labels, (w, h), clusters) {
-                Ok(found) => instance_prototypes = found,
-                Err(e) => semantics_error = Some(e.to_string()),
-            }
-        }
-    }
     let instances = per_instance
         .into_iter()
         .enumerate()
@@ -223,21 +248,32 @@ pub fn window_pass(
     })
 }
 
-/// Prototypes of `clusters` instances from per-pixel labels at the model resolution (`size`,
-/// view-major); each view's labels are sampled at its feature pixels' centres. An instance no
-/// feature pixel sees gets an empty prototype.
-fn instance_semantics(
-    semantic: &mut SemanticModel,
-    frames: &[SyncedFrame],
-    pixel_labels: &[i32],
+/// Prototypes of `clusters` instances (§5.5): the masked mean of the views' semantic features,
+/// each view's labels sampled at its feature pixels' centres from the Gaussians' labels (`pixels`:
+/// each Gaussian's model pixel, view-major). An instance no feature pixel sees gets an empty
+/// prototype.
+fn instance_prototypes_of(
+    features: &[DenseFeatures],
+    pixels: &[usize],
+    labels: &[i32],
     (width, height): (usize, usize),
     clusters: usize,
 ) -> Result<Vec<Vec<f32>>, WindowError> {
-    let features: Vec<DenseFeatures> = frames
-        .iter()
-        .map(|f| semantic.features(&f.rgb))
-        .collect::<Result<_, _>>()?;
-    let labels: Vec<Vec<i32>> = features
+    if pixels.len() != labels.len() {
+        return Err(ModelError::Input(format!(
+            "{} labels for {} lifted pixels",
+            labels.len(),
+            pixels.len()
+        ))
+        .into());
+    }
+    let mut pixel_labels = vec![-1i32; features.len() * width * height];
+    for (&pixel, &label) in pixels.iter().zip(labels) {
+        if let Some(slot) = pixel_labels.get_mut(pixel) {
+            *slot = label;
+        }
+    }
+    let sampled: Vec<Vec<i32>> = features
         .iter()
         .enumerate()
         .map(|(v, f)| {
@@ -255,19 +291,101 @@ fn instance_semantics(
             out
         })
         .collect();
-    let views: Vec<LabelledView<'_>> = labels
+    let views: Vec<LabelledView<'_>> = sampled
         .iter()
-        .zip(&features)
+        .zip(features)
         .map(|(labels, f)| LabelledView {
             labels,
             features: &f.data,
         })
         .collect();
-    let (found, counts) = prototypes(&views, semantic.channels(), clusters)
-        .map_err(|e| ModelError::Input(e.to_string()))?;
+    let channels = features.first().map_or(0, |f| f.channels);
+    let (found, counts) =
+        prototypes(&views, channels, clusters).map_err(|e| ModelError::Input(e.to_string()))?;
     Ok(found
         .into_iter()
         .zip(counts)
         .map(|(p, count)| if count > 0 { p } else { Vec::new() })
         .collect())
+}
+
+/// What a window pass runs on: the reconstruction model, and (optional) the semantic model with
+/// the vocabulary embedded by the text encoder that names instances.
+#[derive(Debug)]
+pub struct WindowModels {
+    pub reconstruction: ReconstructionModel,
+    pub semantic: Option<SemanticModel>,
+    pub vocabulary: Option<Vocabulary>,
+    pub grouping: GroupingParams,
+}
+
+impl WindowModels {
+    /// Load the models `models` names. The reconstruction model is required; the semantic model
+    /// and the text encoder may be missing or broken: instances are then unnamed (logged once).
+    pub fn load(models: &ModelsSection, semantics: &SemanticsSection) -> Result<Self, ModelError> {
+        let options = models.session_options();
+        crate::model::init_runtime(models.onnxruntime.as_deref())?;
+        let manifest = models
+            .reconstruction
+            .as_ref()
+            .ok_or_else(|| ModelError::Input("no reconstruction model configured".into()))?;
+        let reconstruction = ReconstructionModel::load(manifest, &options)?;
+        tracing::info!("reconstruction model {} loaded", manifest.display());
+        let semantic = match models.semantic.as_ref() {
+            None => None,
+            Some(path) if !path.exists() => {
+                tracing::warn!(
+                    "no semantic model at {}: instances will be unnamed",
+                    path.display()
+                );
+                None
+            }
+            Some(path) => match SemanticModel::load(path, &options) {
+                Ok(model) => {
+                    tracing::info!("semantic model {} loaded", path.display());
+                    Some(model)
+                }
+                Err(e) => {
+                    tracing::error!("semantic model unavailable: {e}; instances will be unnamed");
+                    None
+                }
+            },
+        };
+        let vocabulary = semantic.as_ref().and_then(|_| {
+            let embedded =
+                TextEncoder::load(&models.text_encoder, &options).and_then(|mut encoder| {
+                    let embeddings = semantics
+                        .vocabulary
+                        .iter()
+                        .map(|phrase| encoder.embed(phrase))
+                        .collect::<crate::model::Result<Vec<_>>>()?;
+                    Ok(Vocabulary {
+                        phrases: semantics.vocabulary.clone(),
+                        embeddings,
+                        temperature: semantics.temperature,
+                    })
+                });
+            embedded
+                .map_err(|e| {
+                    tracing::error!("text encoder unavailable: {e}; instances will be unnamed")
+                })
+                .ok()
+        });
+        Ok(Self {
+            reconstruction,
+            semantic,
+            vocabulary,
+            grouping: GroupingParams::default(),
+        })
+    }
+
+    /// One window pass over `frames`.
+    pub fn pass(&mut self, frames: &[SyncedFrame]) -> Result<WindowOutput, WindowError> {
+        window_pass(
+            &mut self.reconstruction,
+            self.semantic.as_mut(),
+            frames,
+            &self.grouping,
+        )
+    }
 }

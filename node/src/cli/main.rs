@@ -3,6 +3,7 @@
 
 mod bench;
 mod demo;
+mod eval;
 mod model_check;
 mod replay;
 mod run;
@@ -41,6 +42,11 @@ enum Command {
         #[command(subcommand)]
         command: bench::BenchCommand,
     },
+    /// Evaluations against the simulator's ground truth (the map: `eval map`).
+    Eval {
+        #[command(subcommand)]
+        command: eval::EvalCommand,
+    },
     /// End-to-end demo in one process: the simulator records a scene as a bag, the bag is
     /// replayed over an embedded zenoh peer into the node, and the node is queried.
     Demo(demo::DemoArgs),
@@ -48,9 +54,9 @@ enum Command {
 
 fn main() -> Result<()> {
     let cli = Cli::parse();
-    // The demo's output is its summary: node logs below WARN only with RUST_LOG.
+    // The demo and eval print summaries: node logs below WARN only with RUST_LOG.
     let default_filter = match cli.command {
-        Command::Demo(_) => "warn,zenoh=warn,ort=warn",
+        Command::Demo(_) | Command::Eval { .. } => "warn,zenoh=warn,ort=warn",
         _ => "info,zenoh=warn,ort=warn",
     };
     tracing_subscriber::fmt()
@@ -66,6 +72,7 @@ fn main() -> Result<()> {
         Command::ModelCheck(args) => model_check::run(args),
         Command::Sim { command } => sim::run(command),
         Command::Bench { command } => bench::run(command),
+        Command::Eval { command } => eval::run(command),
         Command::Demo(args) => demo::run(args),
     }
 }

@@ -89,7 +89,7 @@ fn parse_split(name: &str) -> Result<Split> {
     Split::parse(name).with_context(|| format!("unknown split `{name}` (train, val, benchmark)"))
 }
 
-fn progress_bar(len: u64, what: &str) -> indicatif::ProgressBar {
+pub fn progress_bar(len: u64, what: &str) -> indicatif::ProgressBar {
     let bar = indicatif::ProgressBar::new(len);
     if let Ok(style) = indicatif::ProgressStyle::with_template(&format!(
         "{what} {{bar:40}} {{pos}}/{{len}} [{{elapsed_precise}} < {{eta}}]"

@@ -300,6 +300,11 @@ impl SceneMap {
                 }
             }
         }
+        // Duplicates the association could not see (two window instances of one object born in
+        // the same window, or parts that grew together): fold them, younger into older.
+        for (absorbed, survivor) in self.fold_duplicates(&mut keep) {
+            report.absorbed.push((absorbed, survivor));
+        }
         // Clearing radius around the newest camera.
         if let Some(newest) = views.iter().max_by_key(|v| v.keyframe.stamp_nanos) {
             let here = newest.keyframe.world_from_camera.translation.as_vec3();
@@ -322,5 +327,38 @@ impl SceneMap {
             self.keyframes.pop_front();
         }
         Ok(report)
+    }
+
+    /// Fold instances that are one object (similar prototypes, overlapping boxes) into the oldest
+    /// of them; `keep` marks the instances still alive and is updated. Returns (absorbed,
+    /// survivor) id pairs.
+    fn fold_duplicates(&mut self, keep: &mut [bool]) -> Vec<(String, String)> {
+        let p = self.params;
+        let boxes: Vec<_> = self.instances.iter().map(|i| i.oriented_box()).collect();
+        let mut folded = Vec::new();
+        let n = self.instances.len();
+        // Oldest first, so every duplicate folds into the instance the user saw first.
+        let mut order: Vec<usize> = (0..n).collect();
+        order.sort_by_key(|&i| (self.instances[i].first_seen_nanos, i));
+        for (position, &a) in order.iter().enumerate() {
+            if !keep[a] {
+                continue;
+            }
+            for &b in &order[position + 1..] {
+                if !keep[b] {
+                    continue;
+                }
+                let (pa, pb) = (&self.instances[a].prototype, &self.instances[b].prototype);
+                let similar =
+                    !pa.is_empty() && !pb.is_empty() && cosine(pa, pb) >= p.duplicate_similarity;
+                if similar && boxes[a].iou(&boxes[b]) >= p.duplicate_iou {
+                    let duplicate = self.instances[b].clone();
+                    self.instances[a].absorb(&duplicate, p);
+                    keep[b] = false;
+                    folded.push((duplicate.id, self.instances[a].id.clone()));
+                }
+            }
+        }
+        folded
     }
 }

@@ -2,6 +2,7 @@
 
 use glam::Vec3;
 
+use crate::recon::boxes::{OrientedBox, DEFAULT_TRIM};
 use crate::recon::gaussians::{voxel_downsample, Gaussians};
 
 /// A persistent instance.
@@ -26,6 +27,11 @@ impl Instance {
     pub fn center(&self) -> Vec3 {
         let (lo, hi) = self.bounds();
         (lo + hi) / 2.0
+    }
+
+    /// The box the map publishes for this instance (and the evaluation scores).
+    pub fn oriented_box(&self) -> OrientedBox {
+        OrientedBox::fit(&self.gaussians.means, DEFAULT_TRIM)
     }
 
     /// Add Gaussians (voxel-merged, capped) and a prototype observed with `weight` (count-weighted
@@ -103,6 +109,10 @@ pub struct FusionParams {
     pub visible_fraction: f32,
     /// Depth tolerance of the occlusion test (metres).
     pub depth_tolerance: f32,
+    /// Map-level duplicate merging: two instances whose prototypes are at least this similar
+    /// and whose boxes overlap by at least `duplicate_iou` (3D IoU) are one object.
+    pub duplicate_similarity: f32,
+    pub duplicate_iou: f64,
 }
 
 impl Default for FusionParams {
@@ -120,6 +130,8 @@ impl Default for FusionParams {
             miss_penalty: 0.25,
             visible_fraction: 0.5,
             depth_tolerance: 0.1,
+            duplicate_similarity: 0.85,
+            duplicate_iou: 0.25,
         }
     }
 }

@@ -10,6 +10,7 @@
 //! small `min_cluster_size` is what lets small objects form clusters at all.
 
 pub mod blobs;
+pub mod cleaning;
 pub mod hdbscan;
 pub mod semantics;
 

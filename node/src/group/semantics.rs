@@ -207,6 +207,14 @@ pub struct Vocabulary {
 }
 
 impl Vocabulary {
+    /// Whether `prototype` names structure (walls, floor, ceiling: the semantic model's `other`
+    /// class) rather than an object: such instances stay in the map, out of the object list.
+    pub fn is_structure(&self, prototype: &[f32]) -> bool {
+        self.hypotheses(prototype, 1)
+            .first()
+            .is_some_and(|(phrase, _)| phrase == OTHER_PHRASE)
+    }
+
     /// The `count` best phrases for `prototype`, best first, with their softmax scores. Empty when
     /// the prototype is empty or zero, or the vocabulary is.
     pub fn hypotheses(&self, prototype: &[f32], count: usize) -> Vec<(String, f32)> {

@@ -157,6 +157,32 @@ fn resize_depth(depth: &DepthImage, width: usize, height: usize) -> Vec<f32> {
     out
 }
 
+/// Replace a prediction's depth by the views' sensor depth at the model resolution (nearest
+/// sample, so no depth is averaged across an edge), and invalid sensor depth (NaN, 0, ∞) by NaN,
+/// so that such pixels are not lifted. RGB-D mode: geometry comes from the depth camera, which
+/// measures it, and instances from the model's embeddings. Views without depth keep the model's.
+pub fn use_sensor_depth(prediction: &mut Prediction, views: &[View<'_>]) {
+    let (w, h) = (prediction.width, prediction.height);
+    let plane = w * h;
+    for (v, view) in views.iter().enumerate().take(prediction.views) {
+        let Some(depth) = view.depth else { continue };
+        if depth.width == 0 || depth.height == 0 {
+            continue;
+        }
+        let sensor = resize_depth(depth, w, h);
+        for (out, d) in prediction.depth[v * plane..(v + 1) * plane]
+            .iter_mut()
+            .zip(sensor)
+        {
+            *out = if d.is_finite() && d > 0.0 {
+                d
+            } else {
+                f32::NAN
+            };
+        }
+    }
+}
+
 /// Flat pixel index (view-major, row-major at the model resolution) of every Gaussian that
 /// [`ReconstructionModel::to_gaussians`] lifts, in its order: `lift` skips pixels without a finite
 /// positive depth.

@@ -15,7 +15,6 @@ pub mod services;
 pub mod status;
 pub mod worker;
 
-use std::collections::HashMap;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -23,15 +22,13 @@ use std::time::{Duration, Instant};
 use groupforward_msgs::gf_msgs::NodeStatus;
 
 use crate::config::Config;
-use crate::frame::SyncedFrame;
 use crate::graph::persist;
 use crate::transport::Transport;
-use crate::window::Keyframes;
 
 pub use error::{NodeError, Result};
 pub use queue::InputQueue;
 pub use services::{declare, instance_messages, Declared, Shared};
-pub use status::Node;
+pub use status::{Node, Step};
 
 /// Run the node on `transport` until `shutdown` is set; returns the last status.
 pub fn run(
@@ -70,7 +67,6 @@ pub fn run(
     // Every interface is declared before the (slow) model load, so peers see the node at once.
     let (windows, worker) = worker::start_window_worker(config, &shared);
     let mut windows = windows;
-    let mut keyframes: HashMap<String, Keyframes> = HashMap::new();
     let mut windows_dropped = 0u64;
     let mut model_gone = false;
     tracing::info!(
@@ -90,30 +86,19 @@ pub fn run(
         let (item, dropped) = queue.pop(Duration::from_millis(20));
         node.record_dropped(&dropped);
         if let Some((route, payload)) = item {
-            let completed = node.step(route, &payload);
-            if let Some(windows) = &windows {
-                let fresh: Vec<&SyncedFrame> = node.recent_frames().rev().take(completed).collect();
-                for frame in fresh.into_iter().rev() {
-                    let store = keyframes
-                        .entry(frame.camera_name.clone())
-                        .or_insert_with(|| Keyframes::new(config.window.clone()));
-                    if store.offer(frame) {
-                        if let Some(window) = store.take_window() {
-                            // The worker is busy with the previous window: drop this one (counted)
-                            // rather than stall ingest. A worker without a model has exited.
-                            match windows.try_send(window) {
-                                Ok(()) => {}
-                                Err(std::sync::mpsc::TrySendError::Full(_)) => {
-                                    windows_dropped += 1;
-                                    tracing::debug!(
-                                        windows_dropped,
-                                        "window pass busy; window dropped"
-                                    );
-                                }
-                                Err(std::sync::mpsc::TrySendError::Disconnected(_)) => {
-                                    model_gone = true;
-                                }
-                            }
+            let step = node.step(route, &payload);
+            if let Some(sender) = &windows {
+                for window in step.windows {
+                    // The worker is busy with the previous window: drop this one (counted) rather
+                    // than stall ingest. A worker without a model has exited.
+                    match sender.try_send(window) {
+                        Ok(()) => {}
+                        Err(std::sync::mpsc::TrySendError::Full(_)) => {
+                            windows_dropped += 1;
+                            tracing::debug!(windows_dropped, "window pass busy; window dropped");
+                        }
+                        Err(std::sync::mpsc::TrySendError::Disconnected(_)) => {
+                            model_gone = true;
                         }
                     }
                 }

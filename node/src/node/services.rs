@@ -40,8 +40,10 @@ fn time_of(nanos: i64) -> Time {
     Time::from_nanos(nanos)
 }
 
-/// The map's instances as `groupforward_msgs/Instance` (axis-aligned boxes in the map frame), named
-/// by the `hypotheses` best phrases of `vocabulary` for their semantic prototype.
+/// The map's object list as `groupforward_msgs/Instance`: each instance's gravity-aligned box
+/// (pose = centre and yaw about z, in the map frame; size along the box's axes), named by the
+/// `hypotheses` best phrases of `vocabulary` for its semantic prototype. Structure (walls,
+/// floor: prototypes named `other`) stays in the map and out of the list.
 pub fn instance_messages(
     map: &SceneMap,
     vocabulary: Option<&Vocabulary>,
@@ -49,9 +51,10 @@ pub fn instance_messages(
 ) -> Vec<Instance> {
     map.instances
         .iter()
+        .filter(|i| !vocabulary.is_some_and(|v| v.is_structure(&i.prototype)))
         .map(|i| {
-            let (lo, hi) = i.bounds();
-            let (centre, size) = ((lo + hi) / 2.0, hi - lo);
+            let b = i.oriented_box();
+            let half_yaw = b.yaw / 2.0;
             Instance {
                 id: i.id.clone(),
                 hypotheses: vocabulary
@@ -65,21 +68,21 @@ pub fn instance_messages(
                     .collect(),
                 pose: groupforward_msgs::geometry_msgs::Pose {
                     position: groupforward_msgs::geometry_msgs::Point {
-                        x: f64::from(centre.x),
-                        y: f64::from(centre.y),
-                        z: f64::from(centre.z),
+                        x: b.centre.x,
+                        y: b.centre.y,
+                        z: b.centre.z,
                     },
                     orientation: groupforward_msgs::geometry_msgs::Quaternion {
                         x: 0.0,
                         y: 0.0,
-                        z: 0.0,
-                        w: 1.0,
+                        z: half_yaw.sin(),
+                        w: half_yaw.cos(),
                     },
                 },
                 size: groupforward_msgs::geometry_msgs::Vector3 {
-                    x: f64::from(size.x),
-                    y: f64::from(size.y),
-                    z: f64::from(size.z),
+                    x: b.size.x,
+                    y: b.size.y,
+                    z: b.size.z,
                 },
                 point_count: i.gaussians.len() as u32,
                 confidence: i.confidence,

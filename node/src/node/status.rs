@@ -1,7 +1,7 @@
 //! The node's ingest-side state ([`Node`]: ingest plus the frames it completed) and the status
 //! report it publishes every period.
 
-use std::collections::VecDeque;
+use std::collections::HashMap;
 use std::sync::Mutex;
 use std::time::Instant;
 
@@ -13,16 +13,25 @@ use crate::config::Config;
 use crate::frame::SyncedFrame;
 use crate::ingest::{Ingest, Reject, Rejection, Route};
 use crate::transport::Publisher;
+use crate::window::{Keyframes, WindowSection};
 
-/// Frames kept per camera for the stages that land later (keyframes, window passes).
-const RECENT_FRAMES_PER_CAMERA: usize = 4;
+/// What one message did to the node's state.
+#[derive(Debug, Default)]
+pub struct Step {
+    /// Frames that completed (colour, camera info, depth and pose all there).
+    pub synced: usize,
+    /// Keyframe windows that became complete, oldest first: each is one model pass.
+    pub windows: Vec<Vec<SyncedFrame>>,
+}
 
-/// The node's pipeline state, driven by [`Node::step`] without any transport.
+/// The node's pipeline state up to the window pass (ingest, keyframes), driven by [`Node::step`]
+/// without any transport: the node loop and `groupforward eval` feed it alike.
 #[derive(Debug)]
 pub struct Node {
     pub ingest: Ingest,
+    window: WindowSection,
+    keyframes: HashMap<String, Keyframes>,
     started: Instant,
-    recent: VecDeque<SyncedFrame>,
     period_start: Instant,
     period_received: Vec<u64>,
 }
@@ -33,31 +42,33 @@ impl Node {
         let cameras = ingest.camera_count();
         Self {
             ingest,
+            window: config.window.clone(),
+            keyframes: HashMap::new(),
             started: Instant::now(),
-            recent: VecDeque::new(),
             period_start: Instant::now(),
             period_received: vec![0; cameras],
         }
     }
 
-    /// Process one message; returns how many frames completed.
-    pub fn step(&mut self, route: Route, payload: &[u8]) -> usize {
+    /// Process one message: ingest it, offer the frames it completed as keyframes, and return
+    /// the windows that became complete.
+    pub fn step(&mut self, route: Route, payload: &[u8]) -> Step {
         let _span = tracing::debug_span!("ingest", ?route).entered();
         let frames = self.ingest.handle(route, payload);
-        let completed = frames.len();
+        let mut step = Step {
+            synced: frames.len(),
+            windows: Vec::new(),
+        };
         for frame in frames {
-            self.recent.push_back(frame);
+            let store = self
+                .keyframes
+                .entry(frame.camera_name.clone())
+                .or_insert_with(|| Keyframes::new(self.window.clone()));
+            if store.offer(&frame) {
+                step.windows.extend(store.take_window());
+            }
         }
-        let cap = RECENT_FRAMES_PER_CAMERA * self.ingest.camera_count().max(1);
-        while self.recent.len() > cap {
-            self.recent.pop_front();
-        }
-        completed
-    }
-
-    /// The newest completed frames, oldest first.
-    pub fn recent_frames(&self) -> impl DoubleEndedIterator<Item = &SyncedFrame> {
-        self.recent.iter()
+        step
     }
 
     /// Count inputs the queue dropped before they were processed.

@@ -6,6 +6,7 @@
 //! to the world); camera frames are REP-103 optical frames (z forward, x right, y down), which is
 //! also OpenCV's convention; pixel `(u, v)` has its centre at integer coordinates (OpenCV).
 
+pub mod boxes;
 pub mod camera;
 pub mod gauge;
 pub mod gaussians;

@@ -1,0 +1,228 @@
+//! `groupforward eval map`: sim scenes no training saw, replayed through the node's stages with
+//! the shipped (or given) models, the final map scored against ground truth. Writes
+//! `DIR/objects.csv` (one row per object), `DIR/summary.json` and `DIR/summary.md`, and prints
+//! the table.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context, Result};
+use clap::Subcommand;
+use groupforward::config::Config;
+use groupforward::eval::run::{run_scene, SceneRun};
+use groupforward::eval::score::{score_map, score_windows, Counts, Summary};
+use groupforward::window::WindowModels;
+use groupforward_sim::procedural::{generate, Split};
+use groupforward_sim::scene::SceneFile;
+use sha2::{Digest, Sha256};
+
+use crate::sim::{load_scene, progress_bar};
+
+/// Objects seen by fewer pixels over the whole trajectory are not scored (counted apart).
+const MIN_OBJECT_PIXELS: u64 = 1000;
+/// An object counts as seen by a window with this many pixels in its views.
+const MIN_WINDOW_PIXELS: u64 = 200;
+
+#[derive(Debug, Subcommand)]
+pub enum EvalCommand {
+    /// The persistent map against ground truth: recall at 3D IoU 0.25 / 0.5, precision,
+    /// duplicates, merged objects, names, room instances, identity switches; and the same
+    /// yardstick on the window instances before fusion.
+    Map {
+        /// Procedural split to score (its scenes are disjoint from training's).
+        #[arg(long, default_value = "benchmark")]
+        split: String,
+        #[arg(long, default_value_t = 10)]
+        scenes: u64,
+        #[arg(long, default_value_t = 0)]
+        first_index: u64,
+        /// Score these scene files (or `<split>:<index>` specs) instead of a split (repeatable).
+        #[arg(long)]
+        scene: Vec<String>,
+        /// Reconstruction model manifest (default: the shipped RGB-D model).
+        #[arg(long)]
+        model: Option<PathBuf>,
+        #[arg(long, default_value = "target/eval/map")]
+        out: PathBuf,
+    },
+}
+
+pub fn run(command: EvalCommand) -> Result<()> {
+    match command {
+        EvalCommand::Map {
+            split,
+            scenes,
+            first_index,
+            scene,
+            model,
+            out,
+        } => {
+            let files = if scene.is_empty() {
+                let Some(split_kind) = Split::parse(&split) else {
+                    bail!("unknown split `{split}` (train, val, benchmark)");
+                };
+                (first_index..first_index + scenes)
+                    .map(|i| {
+                        generate(split_kind, i)
+                            .with_context(|| format!("no scene {i} in split {split}"))
+                    })
+                    .collect::<Result<Vec<SceneFile>>>()?
+            } else {
+                scene.iter().map(|s| load_scene(s)).collect::<Result<_>>()?
+            };
+            eval_map(&files, model, &out)
+        }
+    }
+}
+
+fn shipped_models() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../models")
+}
+
+/// SHA-256 of a model's ONNX file, through its manifest.
+fn model_hash(manifest: &Path) -> Result<String> {
+    let loaded = groupforward::model::manifest::Manifest::load(manifest)?;
+    let bytes = std::fs::read(loaded.model_path())
+        .with_context(|| format!("reading {}", loaded.model_path().display()))?;
+    Ok(hex_digest(&Sha256::digest(&bytes)))
+}
+
+fn hex_digest(bytes: &[u8]) -> String {
+    bytes.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+fn eval_map(files: &[SceneFile], model: Option<PathBuf>, out: &Path) -> Result<()> {
+    let mut config = Config::default();
+    let models = shipped_models();
+    config.models.reconstruction =
+        Some(model.unwrap_or(models.join("groupforward-mini-rgbd.toml")));
+    config.models.semantic = Some(models.join("semantic-mini.toml"));
+    config.models.text_encoder = models.join("all-MiniLM-L6-v2.toml");
+    let mut window_models = WindowModels::load(&config.models, &config.semantics)
+        .context("loading the models (`make setup` installs ONNX Runtime)")?;
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    let bar = progress_bar(files.len() as u64, "eval map");
+    let (mut total, mut rows, mut per_scene) = (Counts::default(), Vec::new(), Vec::new());
+    let mut window_millis = Vec::new();
+    for file in files {
+        bar.set_message(file.name.clone());
+        let run: SceneRun = run_scene(file, &config, &mut window_models)
+            .with_context(|| format!("scene {}", file.name))?;
+        let (scene_rows, mut counts) = score_map(
+            &run.scene,
+            &run.objects,
+            &run.instances,
+            run.room_area,
+            MIN_OBJECT_PIXELS,
+        );
+        counts.add(&score_windows(
+            &run.objects,
+            &run.windows,
+            MIN_WINDOW_PIXELS,
+        ));
+        total.add(&counts);
+        rows.extend(scene_rows);
+        window_millis.extend(run.window_millis.iter().copied());
+        per_scene.push((run.scene.clone(), counts.summary(), run.windows.len()));
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    let summary = total.summary();
+    let mut csv = csv_writer(&out.join("objects.csv"))?;
+    writeln!(
+        csv,
+        "scene,object,class,pixels,outcome,instance,iou,name,name_correct,centre_error_m,size_ratio"
+    )?;
+    for r in &rows {
+        writeln!(
+            csv,
+            "{},{},{},{},{},{},{:.4},{},{},{:.4},{:.4}",
+            r.scene,
+            r.object,
+            r.class,
+            r.pixels,
+            serde_json::to_value(r.outcome)?.as_str().unwrap_or("?"),
+            r.instance,
+            r.iou,
+            r.name,
+            r.name_correct,
+            r.centre_error_m,
+            r.size_ratio
+        )?;
+    }
+    window_millis.sort_by(f64::total_cmp);
+    let percentile = |p: f64| {
+        window_millis
+            .get(((window_millis.len() as f64 - 1.0) * p).round() as usize)
+            .copied()
+            .unwrap_or(0.0)
+    };
+    let reconstruction = config.models.reconstruction.clone().unwrap_or_default();
+    let json = serde_json::json!({
+        "summary": summary,
+        "counts": total,
+        "scenes": per_scene.iter().map(|(name, s, windows)| serde_json::json!({
+            "scene": name, "windows": windows, "summary": s})).collect::<Vec<_>>(),
+        "window_millis": {"p50": percentile(0.5), "p99": percentile(0.99), "windows": window_millis.len()},
+        "models": {
+            "reconstruction": reconstruction.display().to_string(),
+            "reconstruction_sha256": model_hash(&reconstruction)?,
+            "semantic_sha256": model_hash(&models.join("semantic-mini.toml"))?,
+        },
+        "config": {
+            "window": config.window,
+            "min_object_pixels": MIN_OBJECT_PIXELS,
+            "min_window_pixels": MIN_WINDOW_PIXELS,
+        },
+    });
+    std::fs::write(
+        out.join("summary.json"),
+        serde_json::to_string_pretty(&json)?,
+    )?;
+    let table = markdown(&summary, &per_scene);
+    std::fs::write(out.join("summary.md"), &table)?;
+    print!("{table}");
+    println!(
+        "window pass to map update: p50 {:.0} ms, p99 {:.0} ms over {} windows; wrote {}",
+        percentile(0.5),
+        percentile(0.99),
+        window_millis.len(),
+        out.display()
+    );
+    Ok(())
+}
+
+fn csv_writer(path: &Path) -> Result<std::io::BufWriter<std::fs::File>> {
+    Ok(std::io::BufWriter::new(
+        std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?,
+    ))
+}
+
+fn markdown(total: &Summary, per_scene: &[(String, Summary, usize)]) -> String {
+    let mut out = String::from(
+        "| scene | objects | listed | recall@0.25 | recall@0.5 | precision | duplicates | merged | names | room | id switches / 100 | window recall@0.25 | window precision |\n\
+         | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |\n",
+    );
+    let row = |name: &str, s: &Summary| {
+        format!(
+            "| {name} | {} | {} | {:.1}% | {:.1}% | {:.1}% | {:.1}% | {} | {:.1}% | {} | {:.2} | {:.1}% | {:.1}% |\n",
+            s.objects_scored,
+            s.instances_listed,
+            100.0 * s.recall_at_25,
+            100.0 * s.recall_at_50,
+            100.0 * s.precision,
+            100.0 * s.duplicate_rate,
+            s.merged_objects,
+            100.0 * s.name_top1,
+            s.room_instances,
+            s.id_switches_per_100_sightings,
+            100.0 * s.window_recall_at_25,
+            100.0 * s.window_precision,
+        )
+    };
+    for (name, s, _) in per_scene {
+        out.push_str(&row(name, s));
+    }
+    out.push_str(&row("**all**", total));
+    out
+}

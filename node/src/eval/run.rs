@@ -1,0 +1,210 @@
+//! A sim scene through the node's stages, for evaluation: the simulator records the scene as a
+//! rosbag2 bag (without its ground-truth topics), and every message of the bag goes through the
+//! node's ingest, keyframe selection, window pass and fusion in order, synchronously, so every
+//! window is processed (the live node drops windows that arrive while its worker is busy) and a
+//! run is reproducible. Ground truth is read from the simulator beside the pipeline, only to
+//! score what came out.
+
+use std::collections::{BTreeMap, HashMap};
+use std::time::Instant;
+
+use glam::DVec3;
+use groupforward_sim::record::{record_to_memory, RecordOptions};
+use groupforward_sim::render::PlacedObject;
+use groupforward_sim::scene::SceneFile;
+use groupforward_sim::simulation::Simulation;
+use rayon::prelude::*;
+
+use super::score::{ListedInstance, TruthObject, WindowRecord};
+use crate::config::Config;
+use crate::graph::{GraphError, SceneMap};
+use crate::ingest::Ingest;
+use crate::node::Node;
+use crate::recon::boxes::{OrientedBox, DEFAULT_TRIM};
+use crate::window::{WindowError, WindowModels};
+
+#[derive(Debug, thiserror::Error)]
+pub enum EvalError {
+    #[error("scene `{0}`: {1}")]
+    Sim(String, String),
+    #[error("reading the recorded bag: {0}")]
+    Bag(String),
+    #[error(transparent)]
+    Window(#[from] WindowError),
+    #[error(transparent)]
+    Graph(#[from] GraphError),
+}
+
+/// Everything one scene's run gives the scorer.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SceneRun {
+    pub scene: String,
+    pub room_area: f64,
+    pub objects: Vec<TruthObject>,
+    /// The final map's object list as the node publishes it.
+    pub instances: Vec<ListedInstance>,
+    pub windows: Vec<WindowRecord>,
+    /// Model pass to map update, per window.
+    pub window_millis: Vec<f64>,
+    pub frames: usize,
+}
+
+/// The ground-truth box of a placed object: the union of its parts in its own frame, scaled,
+/// turned by its yaw.
+pub fn truth_box(object: &PlacedObject) -> OrientedBox {
+    use groupforward_sim::library::Primitive;
+    let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
+    for part in &object.parts {
+        let (centre, half) = match *part {
+            Primitive::Box { center, half } => (DVec3::from(center), DVec3::from(half)),
+            Primitive::Cylinder {
+                center,
+                radius,
+                half_height,
+            } => (DVec3::from(center), DVec3::new(radius, radius, half_height)),
+        };
+        lo = lo.min(centre - half);
+        hi = hi.max(centre + half);
+    }
+    if !lo.is_finite() {
+        return OrientedBox::from_bounds(object.position, object.position);
+    }
+    let local_centre = (lo + hi) / 2.0 * object.scale;
+    let (c, s) = (object.yaw.cos(), object.yaw.sin());
+    OrientedBox {
+        centre: object.position
+            + DVec3::new(
+                c * local_centre.x - s * local_centre.y,
+                s * local_centre.x + c * local_centre.y,
+                local_centre.z,
+            ),
+        size: (hi - lo) * object.scale,
+        yaw: object.yaw,
+    }
+    .canonical()
+}
+
+/// Run `file` through the node's stages with `models`; `config` gives the topics, ingest and
+/// window settings (its model paths are not read: `models` is loaded once for all scenes).
+pub fn run_scene(
+    file: &SceneFile,
+    config: &Config,
+    models: &mut WindowModels,
+) -> Result<SceneRun, EvalError> {
+    let sim_error = |e: String| EvalError::Sim(file.name.clone(), e);
+    let sim = Simulation::new(file.clone()).map_err(|e| sim_error(e.to_string()))?;
+    let options = RecordOptions {
+        ground_truth: false,
+        ..RecordOptions::default()
+    };
+    let (bag, _) = record_to_memory(&sim, &options).map_err(|e| sim_error(e.to_string()))?;
+    // Ground truth beside the pipeline: each frame's object pixels, by the stamp its messages carry.
+    let per_frame: Vec<(i64, BTreeMap<u16, u64>)> = (0..sim.frame_count())
+        .into_par_iter()
+        .map(|i| {
+            let frame = sim.frame(i);
+            let mut pixels = BTreeMap::new();
+            for view in &frame.views {
+                for &id in view.truth.instance.iter().filter(|&&id| id > 0) {
+                    *pixels.entry(id).or_insert(0u64) += 1;
+                }
+            }
+            let stamp = options.start_nanos + (frame.stamp_secs * 1e9).round() as i64;
+            (stamp, pixels)
+        })
+        .collect();
+    let frame_pixels: HashMap<i64, &BTreeMap<u16, u64>> =
+        per_frame.iter().map(|(t, p)| (*t, p)).collect();
+    let mut total: BTreeMap<u16, u64> = BTreeMap::new();
+    for (_, pixels) in &per_frame {
+        for (id, n) in pixels.iter() {
+            *total.entry(*id).or_default() += n;
+        }
+    }
+    let objects: Vec<TruthObject> = sim
+        .scene
+        .objects
+        .iter()
+        .map(|o| TruthObject {
+            id: o.instance_id,
+            class: groupforward_sim::library::classes()
+                .iter()
+                .find(|c| c.id == o.class_id)
+                .map_or("object", |c| c.name)
+                .to_owned(),
+            bbox: truth_box(o),
+            pixels: total.get(&o.instance_id).copied().unwrap_or(0),
+        })
+        .collect();
+
+    let routes: HashMap<String, crate::ingest::Route> = Ingest::routes(&config.cameras, &config.tf)
+        .into_iter()
+        .collect();
+    let mut node = Node::new(config);
+    let mut map = SceneMap::default();
+    let mut windows = Vec::new();
+    let mut window_millis = Vec::new();
+    let stream = mcap::MessageStream::new(&bag).map_err(|e| EvalError::Bag(e.to_string()))?;
+    for message in stream {
+        let message = message.map_err(|e| EvalError::Bag(e.to_string()))?;
+        let Some(route) = routes.get(&message.channel.topic) else {
+            continue;
+        };
+        for frames in node.step(*route, &message.data).windows {
+            let started = Instant::now();
+            let stamp = frames.last().map_or(0, |f| f.stamp_nanos);
+            let mut seen: BTreeMap<u16, u64> = BTreeMap::new();
+            for frame in &frames {
+                for (id, n) in frame_pixels
+                    .get(&frame.stamp_nanos)
+                    .into_iter()
+                    .flat_map(|p| p.iter())
+                {
+                    *seen.entry(*id).or_default() += n;
+                }
+            }
+            let output = models.pass(&frames)?;
+            let boxes: Vec<OrientedBox> = output
+                .instances
+                .iter()
+                .map(|i| OrientedBox::fit(&i.gaussians.means, DEFAULT_TRIM))
+                .collect();
+            let report = map.fuse(output.instances, &output.views, stamp)?;
+            window_millis.push(started.elapsed().as_secs_f64() * 1e3);
+            windows.push(WindowRecord {
+                objects: seen.into_iter().collect(),
+                instances: boxes.into_iter().zip(report.assigned).collect(),
+            });
+        }
+    }
+    let structure = |prototype: &[f32]| {
+        models
+            .vocabulary
+            .as_ref()
+            .is_some_and(|v| v.is_structure(prototype))
+    };
+    let instances: Vec<ListedInstance> = map
+        .instances
+        .iter()
+        .filter(|i| !structure(&i.prototype))
+        .map(|i| ListedInstance {
+            id: i.id.clone(),
+            name: models
+                .vocabulary
+                .as_ref()
+                .and_then(|v| v.hypotheses(&i.prototype, 1).into_iter().next())
+                .map_or(String::new(), |(name, _)| name),
+            bbox: i.oriented_box(),
+        })
+        .collect();
+    let room = file.room.size;
+    Ok(SceneRun {
+        scene: file.name.clone(),
+        room_area: room[0] * room[1],
+        objects,
+        instances,
+        windows,
+        window_millis,
+        frames: sim.frame_count(),
+    })
+}

@@ -1,0 +1,555 @@
+//! Scoring a map against ground truth (DESIGN §5.6, §7): instances matched one-to-one to objects
+//! by the 3D IoU of their boxes (Kuhn–Munkres on IoU), then ScanRefer's yardstick (recall at IoU
+//! 0.25 / 0.5), precision, duplicates, merged objects, names, box errors, instances that are the
+//! room, and identity switches along the trajectory. Pure functions over plain boxes: the tests
+//! score hand-built maps.
+
+use std::collections::HashMap;
+
+use pathfinding::prelude::{kuhn_munkres, Matrix};
+use serde::Serialize;
+
+use crate::recon::boxes::OrientedBox;
+
+/// IoU thresholds of the recall figures (ScanRefer's Acc@0.25 / Acc@0.5).
+pub const IOU_LOOSE: f64 = 0.25;
+pub const IOU_TIGHT: f64 = 0.5;
+/// An unmatched instance overlapping a matched object's box by at least this IoU is a duplicate.
+pub const DUPLICATE_IOU: f64 = 0.1;
+/// An instance whose footprint covers this share of the room's floor is the room.
+pub const ROOM_SHARE: f64 = 0.4;
+
+/// A ground-truth object.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TruthObject {
+    pub id: u16,
+    pub class: String,
+    pub bbox: OrientedBox,
+    /// Pixels of it over the whole trajectory (all views); objects seen less are not scored.
+    pub pixels: u64,
+}
+
+/// An instance as the map lists it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ListedInstance {
+    pub id: String,
+    /// Best name ("" when unnamed).
+    pub name: String,
+    pub bbox: OrientedBox,
+}
+
+/// One window: the objects its views saw (id, pixels) and its instances before fusion with the
+/// persistent id fusion gave each.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct WindowRecord {
+    pub objects: Vec<(u16, u64)>,
+    pub instances: Vec<(OrientedBox, String)>,
+}
+
+/// What became of one object.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Outcome {
+    /// Matched at IoU ≥ 0.25.
+    Found,
+    /// Inside the box of an instance matched to another object.
+    Merged,
+    /// No instance covers it.
+    Missed,
+    /// Seen by fewer pixels than scored objects need.
+    NotSeen,
+}
+
+/// One object's row of the per-object table.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ObjectRow {
+    pub scene: String,
+    pub object: u16,
+    pub class: String,
+    pub pixels: u64,
+    pub outcome: Outcome,
+    pub instance: String,
+    pub iou: f64,
+    pub name: String,
+    pub name_correct: bool,
+    pub centre_error_m: f64,
+    /// Instance box volume over the object's.
+    pub size_ratio: f64,
+}
+
+/// Counts that add up over scenes; [`Counts::summary`] turns them into rates.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize)]
+pub struct Counts {
+    pub objects_scored: u64,
+    pub objects_not_seen: u64,
+    pub found_25: u64,
+    pub found_50: u64,
+    pub instances_listed: u64,
+    /// Listed instances matched at IoU ≥ 0.25 to a scored object, or to an object seen too
+    /// little to be scored (neither for nor against precision).
+    pub instances_true: u64,
+    pub instances_unscored: u64,
+    pub duplicates: u64,
+    pub merged_objects: u64,
+    pub room_instances: u64,
+    pub names_correct: u64,
+    pub centre_error_sum_m: f64,
+    pub size_ratio_log_sum: f64,
+    /// Window level (before fusion).
+    pub window_objects: u64,
+    pub window_found_25: u64,
+    pub window_instances: u64,
+    pub window_instances_true: u64,
+    pub sightings: u64,
+    pub id_switches: u64,
+}
+
+impl Counts {
+    pub fn add(&mut self, o: &Counts) {
+        self.objects_scored += o.objects_scored;
+        self.objects_not_seen += o.objects_not_seen;
+        self.found_25 += o.found_25;
+        self.found_50 += o.found_50;
+        self.instances_listed += o.instances_listed;
+        self.instances_true += o.instances_true;
+        self.instances_unscored += o.instances_unscored;
+        self.duplicates += o.duplicates;
+        self.merged_objects += o.merged_objects;
+        self.room_instances += o.room_instances;
+        self.names_correct += o.names_correct;
+        self.centre_error_sum_m += o.centre_error_sum_m;
+        self.size_ratio_log_sum += o.size_ratio_log_sum;
+        self.window_objects += o.window_objects;
+        self.window_found_25 += o.window_found_25;
+        self.window_instances += o.window_instances;
+        self.window_instances_true += o.window_instances_true;
+        self.sightings += o.sightings;
+        self.id_switches += o.id_switches;
+    }
+
+    pub fn summary(&self) -> Summary {
+        let ratio = |a: f64, b: u64| if b == 0 { 0.0 } else { a / b as f64 };
+        Summary {
+            recall_at_25: ratio(self.found_25 as f64, self.objects_scored),
+            recall_at_50: ratio(self.found_50 as f64, self.objects_scored),
+            precision: ratio(
+                self.instances_true as f64,
+                self.instances_listed - self.instances_unscored,
+            ),
+            duplicate_rate: ratio(self.duplicates as f64, self.objects_scored),
+            merged_objects: self.merged_objects,
+            name_top1: ratio(self.names_correct as f64, self.found_25),
+            room_instances: self.room_instances,
+            id_switches_per_100_sightings: 100.0 * ratio(self.id_switches as f64, self.sightings),
+            mean_centre_error_m: ratio(self.centre_error_sum_m, self.found_25),
+            size_ratio_geomean: ratio(self.size_ratio_log_sum, self.found_25).exp(),
+            objects_scored: self.objects_scored,
+            objects_not_seen: self.objects_not_seen,
+            instances_listed: self.instances_listed,
+            window_recall_at_25: ratio(self.window_found_25 as f64, self.window_objects),
+            window_precision: ratio(self.window_instances_true as f64, self.window_instances),
+        }
+    }
+}
+
+/// The map's figures (`summary.json`).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Summary {
+    pub recall_at_25: f64,
+    pub recall_at_50: f64,
+    pub precision: f64,
+    pub duplicate_rate: f64,
+    pub merged_objects: u64,
+    pub name_top1: f64,
+    pub room_instances: u64,
+    pub id_switches_per_100_sightings: f64,
+    pub mean_centre_error_m: f64,
+    /// Geometric mean of instance over object box volume, over found objects (1 = right size).
+    pub size_ratio_geomean: f64,
+    pub objects_scored: u64,
+    pub objects_not_seen: u64,
+    pub instances_listed: u64,
+    /// The same yardstick on the window instances before fusion (objects the window saw).
+    pub window_recall_at_25: f64,
+    pub window_precision: f64,
+}
+
+/// One-to-one matching maximising total IoU; returns per row the column it got and the IoU
+/// (pairs without overlap are never matched).
+pub fn match_by_iou(rows: &[OrientedBox], columns: &[OrientedBox]) -> Vec<Option<(usize, f64)>> {
+    if rows.is_empty() || columns.is_empty() {
+        return vec![None; rows.len()];
+    }
+    let iou: Vec<Vec<f64>> = rows
+        .iter()
+        .map(|r| columns.iter().map(|c| r.iou(c)).collect())
+        .collect();
+    // Kuhn–Munkres needs rows ≤ columns: transpose when there are more rows.
+    let transpose = rows.len() > columns.len();
+    let (n, m) = if transpose {
+        (columns.len(), rows.len())
+    } else {
+        (rows.len(), columns.len())
+    };
+    let scale = 1e6;
+    let weights = Matrix::from_fn(n, m, |(i, j)| {
+        let v = if transpose { iou[j][i] } else { iou[i][j] };
+        (v * scale).round() as i64
+    });
+    let (_, assignment) = kuhn_munkres(&weights);
+    let mut out = vec![None; rows.len()];
+    for (i, &j) in assignment.iter().enumerate() {
+        let (row, column) = if transpose { (j, i) } else { (i, j) };
+        let value = iou[row][column];
+        if value > 0.0 {
+            out[row] = Some((column, value));
+        }
+    }
+    out
+}
+
+/// Score the final map of one scene. `room_area`: the room's floor area (m²); `min_pixels`: the
+/// pixels an object needs over the trajectory to be scored.
+pub fn score_map(
+    scene: &str,
+    objects: &[TruthObject],
+    instances: &[ListedInstance],
+    room_area: f64,
+    min_pixels: u64,
+) -> (Vec<ObjectRow>, Counts) {
+    let mut counts = Counts {
+        instances_listed: instances.len() as u64,
+        ..Counts::default()
+    };
+    let object_boxes: Vec<OrientedBox> = objects.iter().map(|o| o.bbox).collect();
+    let instance_boxes: Vec<OrientedBox> = instances.iter().map(|i| i.bbox).collect();
+    let matches = match_by_iou(&object_boxes, &instance_boxes);
+    let scored = |o: &TruthObject| o.pixels >= min_pixels;
+    // Instances that found an object at the loose threshold, and which object.
+    let mut instance_object: HashMap<usize, usize> = HashMap::new();
+    for (k, m) in matches.iter().enumerate() {
+        if let Some((i, iou)) = m {
+            if *iou >= IOU_LOOSE {
+                instance_object.insert(*i, k);
+            }
+        }
+    }
+    for &k in instance_object.values() {
+        if scored(&objects[k]) {
+            counts.instances_true += 1;
+        } else {
+            counts.instances_unscored += 1;
+        }
+    }
+    counts.room_instances = instances
+        .iter()
+        .filter(|i| room_area > 0.0 && i.bbox.footprint_area() >= ROOM_SHARE * room_area)
+        .count() as u64;
+    let mut rows = Vec::with_capacity(objects.len());
+    for (k, object) in objects.iter().enumerate() {
+        let mut row = ObjectRow {
+            scene: scene.to_owned(),
+            object: object.id,
+            class: object.class.clone(),
+            pixels: object.pixels,
+            outcome: Outcome::Missed,
+            instance: String::new(),
+            iou: 0.0,
+            name: String::new(),
+            name_correct: false,
+            centre_error_m: f64::NAN,
+            size_ratio: f64::NAN,
+        };
+        if let Some((i, iou)) = matches[k] {
+            let instance = &instances[i];
+            row.instance = instance.id.clone();
+            row.iou = iou;
+            row.name = instance.name.clone();
+            row.name_correct = instance.name == object.class;
+            row.centre_error_m = (instance.bbox.centre - object.bbox.centre).length();
+            row.size_ratio = instance.bbox.volume() / object.bbox.volume().max(1e-9);
+        }
+        if !scored(object) {
+            row.outcome = Outcome::NotSeen;
+            counts.objects_not_seen += 1;
+            rows.push(row);
+            continue;
+        }
+        counts.objects_scored += 1;
+        if row.iou >= IOU_LOOSE {
+            row.outcome = Outcome::Found;
+            counts.found_25 += 1;
+            counts.found_50 += u64::from(row.iou >= IOU_TIGHT);
+            counts.names_correct += u64::from(row.name_correct);
+            counts.centre_error_sum_m += row.centre_error_m;
+            counts.size_ratio_log_sum += row.size_ratio.max(1e-9).ln();
+        } else {
+            // Merged: its centre lies in the box of an instance that found another object.
+            let merged = instance_object
+                .iter()
+                .any(|(&i, &other)| other != k && instances[i].bbox.contains(object.bbox.centre));
+            if merged {
+                row.outcome = Outcome::Merged;
+                counts.merged_objects += 1;
+            }
+        }
+        rows.push(row);
+    }
+    // Duplicates: listed instances that found nothing but overlap an object another instance found.
+    let found_objects: Vec<usize> = instance_object.values().copied().collect();
+    counts.duplicates = instances
+        .iter()
+        .enumerate()
+        .filter(|(i, _)| !instance_object.contains_key(i))
+        .filter(|(_, instance)| {
+            found_objects
+                .iter()
+                .any(|&k| instance.bbox.iou(&objects[k].bbox) >= DUPLICATE_IOU)
+        })
+        .count() as u64;
+    (rows, counts)
+}
+
+/// Score the windows of one scene: each window's instances against the objects it saw (at least
+/// `min_pixels` in the window's views), and the persistent id every sighting got. An identity
+/// switch is an object sighted under another id than at its previous sighting.
+pub fn score_windows(objects: &[TruthObject], windows: &[WindowRecord], min_pixels: u64) -> Counts {
+    let mut counts = Counts::default();
+    let mut last_id: HashMap<u16, String> = HashMap::new();
+    for window in windows {
+        let seen: Vec<&TruthObject> = window
+            .objects
+            .iter()
+            .filter(|(_, pixels)| *pixels >= min_pixels)
+            .filter_map(|(id, _)| objects.iter().find(|o| o.id == *id))
+            .collect();
+        let boxes: Vec<OrientedBox> = seen.iter().map(|o| o.bbox).collect();
+        let instance_boxes: Vec<OrientedBox> = window.instances.iter().map(|i| i.0).collect();
+        let matches = match_by_iou(&boxes, &instance_boxes);
+        counts.window_objects += seen.len() as u64;
+        counts.window_instances += window.instances.len() as u64;
+        for (object, m) in seen.iter().zip(&matches) {
+            let Some((i, iou)) = m else { continue };
+            if *iou < IOU_LOOSE {
+                continue;
+            }
+            counts.window_found_25 += 1;
+            counts.window_instances_true += 1;
+            counts.sightings += 1;
+            let id = &window.instances[*i].1;
+            if let Some(previous) = last_id.insert(object.id, id.clone()) {
+                counts.id_switches += u64::from(&previous != id);
+            }
+        }
+    }
+    counts
+}
+
+#[cfg(test)]
+mod tests {
+    use glam::DVec3;
+
+    use super::*;
+
+    fn object(id: u16, x: f64, size: f64) -> TruthObject {
+        TruthObject {
+            id,
+            class: "chair".into(),
+            bbox: OrientedBox {
+                centre: DVec3::new(x, 0.0, size / 2.0),
+                size: DVec3::splat(size),
+                yaw: 0.0,
+            },
+            pixels: 5_000,
+        }
+    }
+
+    fn listed(id: &str, x: f64, size: f64) -> ListedInstance {
+        ListedInstance {
+            id: id.into(),
+            name: "chair".into(),
+            bbox: object(0, x, size).bbox,
+        }
+    }
+
+    fn objects() -> Vec<TruthObject> {
+        vec![
+            object(1, 0.0, 0.5),
+            object(2, 2.0, 0.5),
+            object(3, 4.0, 0.5),
+        ]
+    }
+
+    #[test]
+    fn a_perfect_map_scores_perfectly() {
+        let map = vec![
+            listed("a", 0.0, 0.5),
+            listed("b", 2.0, 0.5),
+            listed("c", 4.0, 0.5),
+        ];
+        let (rows, counts) = score_map("s", &objects(), &map, 30.0, 1000);
+        let s = counts.summary();
+        assert_eq!(
+            (s.recall_at_25, s.recall_at_50, s.precision),
+            (1.0, 1.0, 1.0)
+        );
+        assert_eq!(
+            (s.duplicate_rate, s.merged_objects, s.room_instances),
+            (0.0, 0, 0)
+        );
+        assert_eq!(s.name_top1, 1.0);
+        assert!(s.mean_centre_error_m < 1e-12 && (s.size_ratio_geomean - 1.0).abs() < 1e-9);
+        assert!(rows.iter().all(|r| r.outcome == Outcome::Found));
+    }
+
+    #[test]
+    fn shifted_boxes_count_at_the_loose_threshold_only() {
+        // 0.2 m along x of a 0.5 m cube: IoU 0.3 / 0.7 = 0.43.
+        let map = vec![
+            listed("a", 0.2, 0.5),
+            listed("b", 2.0, 0.5),
+            listed("c", 4.0, 0.5),
+        ];
+        let (rows, counts) = score_map("s", &objects(), &map, 30.0, 1000);
+        let s = counts.summary();
+        assert!((rows[0].iou - 0.3 / 0.7).abs() < 1e-9);
+        assert!((s.recall_at_25 - 1.0).abs() < 1e-12);
+        assert!((s.recall_at_50 - 2.0 / 3.0).abs() < 1e-12);
+        assert!((rows[0].centre_error_m - 0.2).abs() < 1e-9);
+    }
+
+    #[test]
+    fn a_split_object_gives_a_duplicate_and_costs_precision() {
+        // Object 1 in two halves; the bigger half is matched, the other is a duplicate.
+        let map = vec![
+            ListedInstance {
+                bbox: OrientedBox {
+                    centre: DVec3::new(-0.1, 0.0, 0.25),
+                    size: DVec3::new(0.3, 0.5, 0.5),
+                    yaw: 0.0,
+                },
+                ..listed("a", 0.0, 0.5)
+            },
+            ListedInstance {
+                bbox: OrientedBox {
+                    centre: DVec3::new(0.15, 0.0, 0.25),
+                    size: DVec3::new(0.2, 0.5, 0.5),
+                    yaw: 0.0,
+                },
+                ..listed("a2", 0.0, 0.5)
+            },
+            listed("b", 2.0, 0.5),
+            listed("c", 4.0, 0.5),
+        ];
+        let (_, counts) = score_map("s", &objects(), &map, 30.0, 1000);
+        let s = counts.summary();
+        assert_eq!(s.recall_at_25, 1.0);
+        assert!((s.precision - 0.75).abs() < 1e-12);
+        assert!((s.duplicate_rate - 1.0 / 3.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn two_objects_in_one_instance_are_merged_and_the_room_is_counted() {
+        // One instance spans objects 1 and 2; another covers the whole 6 x 5 m room.
+        let map = vec![
+            ListedInstance {
+                bbox: OrientedBox {
+                    centre: DVec3::new(1.0, 0.0, 0.25),
+                    size: DVec3::new(2.6, 0.6, 0.5),
+                    yaw: 0.0,
+                },
+                ..listed("ab", 0.0, 0.5)
+            },
+            listed("c", 4.0, 0.5),
+            ListedInstance {
+                name: "other".into(),
+                bbox: OrientedBox {
+                    centre: DVec3::new(3.0, 2.5, 1.5),
+                    size: DVec3::new(6.0, 5.0, 3.0),
+                    yaw: 0.0,
+                },
+                ..listed("room", 0.0, 0.5)
+            },
+        ];
+        let (rows, counts) = score_map("s", &objects(), &map, 30.0, 1000);
+        let s = counts.summary();
+        assert_eq!(s.room_instances, 1);
+        // The spanning box holds cube 1 whole: IoU 0.125 / 0.78 = 0.16, under the threshold, so
+        // no object is found by it and none counts as merged into a found one.
+        assert_eq!(rows[0].outcome, Outcome::Missed);
+        assert!((s.recall_at_25 - 1.0 / 3.0).abs() < 1e-12);
+        // A box that finds a 1 m object (IoU 1 / 2.6) and also covers a small one's centre.
+        let map = vec![
+            ListedInstance {
+                bbox: OrientedBox {
+                    centre: DVec3::new(0.8, 0.0, 0.5),
+                    size: DVec3::new(2.6, 1.0, 1.0),
+                    yaw: 0.0,
+                },
+                ..listed("ab", 0.0, 0.5)
+            },
+            listed("c", 4.0, 0.5),
+        ];
+        let objects = vec![
+            object(1, 0.0, 1.0),
+            object(2, 2.0, 0.3),
+            object(3, 4.0, 0.5),
+        ];
+        let (rows, counts) = score_map("s", &objects, &map, 30.0, 1000);
+        assert_eq!(rows[0].outcome, Outcome::Found, "{rows:?}");
+        assert_eq!(rows[1].outcome, Outcome::Merged, "{rows:?}");
+        assert_eq!(counts.merged_objects, 1);
+    }
+
+    #[test]
+    fn an_empty_map_and_unseen_objects_score_without_nan() {
+        let mut objects = objects();
+        objects[2].pixels = 10;
+        let (rows, counts) = score_map("s", &objects, &[], 30.0, 1000);
+        let s = counts.summary();
+        assert_eq!(
+            (
+                s.recall_at_25,
+                s.precision,
+                s.objects_scored,
+                s.objects_not_seen
+            ),
+            (0.0, 0.0, 2, 1)
+        );
+        assert_eq!(rows[2].outcome, Outcome::NotSeen);
+        let summary = serde_json::to_string(&s).unwrap();
+        assert!(
+            !summary.contains("NaN") && !summary.contains("null"),
+            "{summary}"
+        );
+        let (_, none) = score_map("s", &[], &[], 30.0, 1000);
+        assert_eq!(none.summary().recall_at_25, 0.0);
+    }
+
+    #[test]
+    fn identity_switches_are_counted_per_sighting() {
+        let objects = objects();
+        let at = |x: f64, id: &str| (object(0, x, 0.5).bbox, id.to_owned());
+        let windows = vec![
+            WindowRecord {
+                objects: vec![(1, 500), (2, 500)],
+                instances: vec![at(0.0, "a"), at(2.0, "b")],
+            },
+            WindowRecord {
+                objects: vec![(1, 500), (2, 500), (3, 10)],
+                instances: vec![at(0.0, "a"), at(2.0, "c"), at(4.0, "d")],
+            },
+            WindowRecord {
+                objects: vec![(2, 500)],
+                instances: vec![at(2.0, "c")],
+            },
+        ];
+        let counts = score_windows(&objects, &windows, 100);
+        assert_eq!(counts.sightings, 5);
+        assert_eq!(counts.id_switches, 1, "object 2 went from b to c once");
+        // Object 3 was seen by too few pixels in its window: its instance counts against
+        // window precision only.
+        assert_eq!((counts.window_objects, counts.window_instances), (5, 6));
+        assert_eq!(counts.window_found_25, 5);
+    }
+}
