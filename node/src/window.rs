@@ -175,11 +175,23 @@ pub fn window_pass(
             *label = -1;
         }
     }
+    // The grid must be coarser than a pixel's footprint on the surface, or neighbouring pixels of
+    // one surface fall apart (small model resolutions, far surfaces).
+    let mut depths: Vec<f32> = pixels.iter().map(|&p| prediction.depth[p]).collect();
+    depths.sort_by(f32::total_cmp);
+    let focal = frames
+        .iter()
+        .map(|f| resized_camera(&f.camera, w, h).fx)
+        .fold(f64::INFINITY, f64::min);
+    let footprint = depths
+        .get(depths.len() / 2)
+        .map_or(0.0, |&d| f64::from(d) / focal) as f32;
+    let cell = cleaning.cell.max(3.0 * footprint);
     let clusters = split_components(
         &mut labels,
         &gaussians.means,
-        cleaning.cell,
-        cleaning.min_points,
+        cell,
+        grouping.hdbscan.min_cluster_size,
     );
     let (mut instance_prototypes, mut semantics_error) = (Vec::new(), None);
     if let Some(semantic) = semantic {

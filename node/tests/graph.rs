@@ -10,28 +10,9 @@ use groupforward::recon::camera::Camera;
 use groupforward::recon::gaussians::Gaussians;
 use groupforward::recon::Rigid;
 
-/// A solid box of Gaussians on a 2.5 cm grid.
+/// A solid cube of Gaussians on a 2.5 cm grid.
 fn cube(center: Vec3, half: f32) -> Gaussians {
-    let mut g = Gaussians::with_dims(0, 0);
-    let steps = (2.0 * half / 0.025).round() as i32;
-    for i in 0..=steps {
-        for j in 0..=steps {
-            for k in 0..=steps {
-                let p =
-                    center - Vec3::splat(half) + Vec3::new(i as f32, j as f32, k as f32) * 0.025;
-                g.push(
-                    p,
-                    0.9,
-                    Vec3::splat(0.015),
-                    Quat::IDENTITY,
-                    Vec3::splat(0.5),
-                    &[],
-                    &[],
-                );
-            }
-        }
-    }
-    g
+    cuboid(center, Vec3::splat(half))
 }
 
 fn instance(center: Vec3, prototype: [f32; 3]) -> WindowInstance {

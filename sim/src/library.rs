@@ -2,6 +2,8 @@
 //! (boxes and vertical cylinders, in the object's frame: z up, base on z = 0), with a nominal size,
 //! a plausible colour, a short description and affordances.
 
+use glam::DVec3;
+
 /// A primitive in the object's frame (metres at scale 1).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Primitive {
@@ -13,6 +15,20 @@ pub enum Primitive {
         radius: f64,
         half_height: f64,
     },
+}
+
+impl Primitive {
+    /// Centre and half extents of the part's axis-aligned box, in the object's frame.
+    pub fn extent(&self) -> (DVec3, DVec3) {
+        match *self {
+            Primitive::Box { center, half } => (center.into(), half.into()),
+            Primitive::Cylinder {
+                center,
+                radius,
+                half_height,
+            } => (center.into(), DVec3::new(radius, radius, half_height)),
+        }
+    }
 }
 
 /// A horizontal surface of an object that can carry other objects (a table top, a shelf), in the

@@ -33,14 +33,7 @@ impl PlacedObject {
         let rotation = DQuat::from_rotation_z(self.yaw);
         let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
         for part in &self.parts {
-            let (center, half) = match *part {
-                Primitive::Box { center, half } => (DVec3::from(center), DVec3::from(half)),
-                Primitive::Cylinder {
-                    center,
-                    radius,
-                    half_height,
-                } => (DVec3::from(center), DVec3::new(radius, radius, half_height)),
-            };
+            let (center, half) = part.extent();
             for corner in 0..8 {
                 let sign = DVec3::new(
                     if corner & 1 == 0 { -1.0 } else { 1.0 },

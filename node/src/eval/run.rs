@@ -52,17 +52,9 @@ pub struct SceneRun {
 /// The ground-truth box of a placed object: the union of its parts in its own frame, scaled,
 /// turned by its yaw.
 pub fn truth_box(object: &PlacedObject) -> OrientedBox {
-    use groupforward_sim::library::Primitive;
     let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
     for part in &object.parts {
-        let (centre, half) = match *part {
-            Primitive::Box { center, half } => (DVec3::from(center), DVec3::from(half)),
-            Primitive::Cylinder {
-                center,
-                radius,
-                half_height,
-            } => (DVec3::from(center), DVec3::new(radius, radius, half_height)),
-        };
+        let (centre, half) = part.extent();
         lo = lo.min(centre - half);
         hi = hi.max(centre + half);
     }

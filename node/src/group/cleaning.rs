@@ -17,10 +17,8 @@ pub struct CleaningParams {
     /// Gaussians less opaque than this are not grouped.
     pub min_opacity: f32,
     /// Voxel size of the connectivity grid (metres): points in touching voxels (26-neighbourhood)
-    /// are connected.
+    /// are connected. Components smaller than HDBSCAN's `min_cluster_size` are noise.
     pub cell: f32,
-    /// Components with fewer points are noise.
-    pub min_points: usize,
 }
 
 impl Default for CleaningParams {
@@ -29,7 +27,6 @@ impl Default for CleaningParams {
             flying_ratio: 0.1,
             min_opacity: 0.05,
             cell: 0.12,
-            min_points: 30,
         }
     }
 }
