@@ -416,6 +416,37 @@ fn a_window_spanning_two_instances_folds_the_younger_into_the_older() {
     );
 }
 
+#[test]
+fn a_part_inside_a_larger_instance_of_the_same_kind_is_folded_even_at_low_box_iou() {
+    // One window gives a table and, separately, a piece of the same table: box IoU 0.05, but every
+    // point of the piece lies on the table's points.
+    let mut map = SceneMap::new(FusionParams::default());
+    let table = WindowInstance {
+        gaussians: cuboid(Vec3::new(3.0, 0.0, 0.0), Vec3::new(0.5, 0.2, 0.2)),
+        prototype: TABLE.to_vec(),
+        support: 300,
+    };
+    let piece = WindowInstance {
+        gaussians: cuboid(Vec3::new(3.3, 0.0, 0.0), Vec3::splat(0.1)),
+        prototype: TABLE.to_vec(),
+        support: 30,
+    };
+    let report = map.fuse(vec![table, piece], &[], 1).unwrap();
+    assert_eq!(
+        report.absorbed,
+        [("inst_000002".to_owned(), "inst_000001".to_owned())]
+    );
+    assert_eq!(map.instances.len(), 1);
+    // A chair beside the table (a different prototype) is never folded into it.
+    let chair = WindowInstance {
+        gaussians: cuboid(Vec3::new(3.3, 0.35, 0.0), Vec3::splat(0.15)),
+        prototype: CHAIR.to_vec(),
+        support: 30,
+    };
+    map.fuse(vec![chair], &[], 2).unwrap();
+    assert_eq!(map.instances.len(), 2);
+}
+
 fn sample_map() -> SceneMap {
     let mut map = SceneMap::new(FusionParams::default());
     map.fuse(

@@ -351,7 +351,14 @@ impl SceneMap {
                 let (pa, pb) = (&self.instances[a].prototype, &self.instances[b].prototype);
                 let similar =
                     !pa.is_empty() && !pb.is_empty() && cosine(pa, pb) >= p.duplicate_similarity;
-                if similar && boxes[a].iou(&boxes[b]) >= p.duplicate_iou {
+                let overlapping = || {
+                    let (fa, fb) = (
+                        Footprint::new(&self.instances[a].gaussians, p.voxel),
+                        Footprint::new(&self.instances[b].gaussians, p.voxel),
+                    );
+                    fa.overlap(&fb, 1.5 * fa.spacing.max(fb.spacing)) >= 0.5
+                };
+                if similar && (boxes[a].iou(&boxes[b]) >= p.duplicate_iou || overlapping()) {
                     let duplicate = self.instances[b].clone();
                     self.instances[a].absorb(&duplicate, p);
                     keep[b] = false;

@@ -110,7 +110,8 @@ pub struct FusionParams {
     /// Depth tolerance of the occlusion test (metres).
     pub depth_tolerance: f32,
     /// Map-level duplicate merging: two instances whose prototypes are at least this similar
-    /// and whose boxes overlap by at least `duplicate_iou` (3D IoU) are one object.
+    /// and whose boxes overlap by at least `duplicate_iou` (3D IoU), or half of whose smaller
+    /// one's points lie on the other's, are one object.
     pub duplicate_similarity: f32,
     pub duplicate_iou: f64,
 }
