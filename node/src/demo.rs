@@ -127,6 +127,8 @@ pub struct DemoReport {
     pub expressions: Vec<Expression>,
     /// Open-vocabulary lookups, or why the text encoder could not run.
     pub vocabulary: std::result::Result<Vec<VocabularyMatch>, String>,
+    /// The listed instances against the scene's objects, with `eval map`'s yardstick.
+    pub map_score: crate::eval::score::Counts,
     pub elapsed: Duration,
 }
 
@@ -365,6 +367,7 @@ pub fn run_demo(options: &DemoOptions) -> Result<DemoReport> {
             (o.instance_id, class.to_owned(), o.position.to_array())
         })
         .collect();
+    let map_score = score_listed(&sim, &instances, &options.scene);
     let mut expressions = groupforward_sim::referring::scene_expressions(&options.scene)
         .map_err(|e| DemoError::Sim(e.to_string()))?;
     let mut seen = std::collections::BTreeSet::new();
@@ -379,6 +382,53 @@ pub fn run_demo(options: &DemoOptions) -> Result<DemoReport> {
         objects,
         expressions,
         vocabulary: match_vocabulary(DEMO_QUERIES),
+        map_score,
         elapsed: started.elapsed(),
     })
+}
+
+/// The instances `list_instances` answered, scored against the scene's objects as `eval map`
+/// scores a map (every object counts: the demo's orbit sees them all).
+fn score_listed(
+    sim: &Simulation,
+    instances: &[groupforward_msgs::gf_msgs::Instance],
+    scene: &SceneFile,
+) -> crate::eval::score::Counts {
+    use crate::eval::score::{score_map, ListedInstance, TruthObject};
+    let classes = groupforward_sim::library::classes();
+    let objects: Vec<TruthObject> = sim
+        .scene
+        .objects
+        .iter()
+        .map(|o| TruthObject {
+            id: o.instance_id,
+            class: classes
+                .iter()
+                .find(|c| c.id == o.class_id)
+                .map_or("unknown", |c| c.name)
+                .to_owned(),
+            bbox: crate::eval::run::truth_box(o),
+            pixels: 1,
+        })
+        .collect();
+    let listed: Vec<ListedInstance> = instances
+        .iter()
+        .map(|i| {
+            let (p, q, size) = (&i.pose.position, &i.pose.orientation, &i.size);
+            ListedInstance {
+                id: i.id.clone(),
+                name: i
+                    .hypotheses
+                    .first()
+                    .map_or(String::new(), |h| h.class_id.clone()),
+                bbox: crate::recon::boxes::OrientedBox {
+                    centre: glam::DVec3::new(p.x, p.y, p.z),
+                    size: glam::DVec3::new(size.x, size.y, size.z),
+                    yaw: 2.0 * q.z.atan2(q.w),
+                },
+            }
+        })
+        .collect();
+    let room = scene.room.size;
+    score_map(&scene.name, &objects, &listed, room[0] * room[1], 0).1
 }

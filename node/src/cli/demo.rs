@@ -93,6 +93,18 @@ fn print_report(report: &DemoReport) {
             );
         }
     }
+    let s = report.map_score.summary();
+    let c = &report.map_score;
+    println!(
+        "  the list against ground truth (eval map's yardstick, 3D IoU of boxes): {} of {} objects found at IoU >= 0.25, {} at >= 0.5; {} of {} listed instances are objects, {} named right; {} room-sized",
+        c.found_25,
+        c.objects_scored,
+        c.found_50,
+        c.instances_true,
+        c.instances_listed,
+        c.names_correct,
+        s.room_instances
+    );
     println!("  ground truth ({} objects):", report.objects.len());
     for (id, class, p) in &report.objects {
         println!(
