@@ -215,10 +215,9 @@ pub fn run_demo(options: &DemoOptions) -> Result<DemoReport> {
     let mut config = Config::default();
     config.status.period_secs = 0.2;
     // The shipped models, wherever the demo is started from.
-    let models = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../models");
-    config.models.reconstruction = Some(models.join("groupforward-mini-rgbd.toml"));
-    config.models.semantic = Some(models.join("semantic-mini.toml"));
-    config.models.text_encoder = models.join("all-MiniLM-L6-v2.toml");
+    config.models = crate::model::ModelsSection::shipped_in(
+        &std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../models"),
+    );
     let embedded = ZenohSection {
         connect: Vec::new(),
         ..ZenohSection::default()
@@ -388,29 +387,15 @@ pub fn run_demo(options: &DemoOptions) -> Result<DemoReport> {
 }
 
 /// The instances `list_instances` answered, scored against the scene's objects as `eval map`
-/// scores a map (every object counts: the demo's orbit sees them all).
+/// scores a map.
 fn score_listed(
     sim: &Simulation,
     instances: &[groupforward_msgs::gf_msgs::Instance],
     scene: &SceneFile,
 ) -> crate::eval::score::Counts {
-    use crate::eval::score::{score_map, ListedInstance, TruthObject};
-    let classes = groupforward_sim::library::classes();
-    let objects: Vec<TruthObject> = sim
-        .scene
-        .objects
-        .iter()
-        .map(|o| TruthObject {
-            id: o.instance_id,
-            class: classes
-                .iter()
-                .find(|c| c.id == o.class_id)
-                .map_or("unknown", |c| c.name)
-                .to_owned(),
-            bbox: crate::eval::run::truth_box(o),
-            pixels: 1,
-        })
-        .collect();
+    use crate::eval::score::{score_map, ListedInstance};
+    // Every object counts: the demo's orbit sees them all.
+    let objects = crate::eval::run::truth_objects(&sim.scene, |_| 1);
     let listed: Vec<ListedInstance> = instances
         .iter()
         .map(|i| {

@@ -9,16 +9,17 @@ use std::path::Path;
 use groupforward::config::Config;
 use groupforward::eval::run::run_scene;
 use groupforward::eval::score::{score_map, score_windows, Outcome};
+use groupforward::model::ModelsSection;
 use groupforward::window::WindowModels;
 use groupforward_sim::scene::SceneFile;
 
 #[test]
 fn the_demo_scene_s_map_finds_its_objects_without_the_room_or_duplicates() {
     let models = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models");
-    let mut config = Config::default();
-    config.models.reconstruction = Some(models.join("groupforward-mini-rgbd.toml"));
-    config.models.semantic = Some(models.join("semantic-mini.toml"));
-    config.models.text_encoder = models.join("all-MiniLM-L6-v2.toml");
+    let config = Config {
+        models: ModelsSection::shipped_in(&models),
+        ..Config::default()
+    };
     let mut window_models = WindowModels::load(&config.models, &config.semantics).unwrap();
     let scene = SceneFile::builtin("two_chairs").unwrap();
     let run = run_scene(&scene, &config, &mut window_models).unwrap();

@@ -11,6 +11,7 @@ use clap::Subcommand;
 use groupforward::config::Config;
 use groupforward::eval::run::{run_scene, SceneRun};
 use groupforward::eval::score::{score_map, score_windows, Counts, Summary};
+use groupforward::model::ModelsSection;
 use groupforward::window::WindowModels;
 use groupforward_sim::procedural::{generate, Split};
 use groupforward_sim::scene::SceneFile;
@@ -94,10 +95,10 @@ fn hex_digest(bytes: &[u8]) -> String {
 fn eval_map(files: &[SceneFile], model: Option<PathBuf>, out: &Path) -> Result<()> {
     let mut config = Config::default();
     let models = shipped_models();
-    config.models.reconstruction =
-        Some(model.unwrap_or(models.join("groupforward-mini-rgbd.toml")));
-    config.models.semantic = Some(models.join("semantic-mini.toml"));
-    config.models.text_encoder = models.join("all-MiniLM-L6-v2.toml");
+    config.models = ModelsSection::shipped_in(&models);
+    if let Some(model) = model {
+        config.models.reconstruction = Some(model);
+    }
     let mut window_models = WindowModels::load(&config.models, &config.semantics)
         .context("loading the models (`make setup` installs ONNX Runtime)")?;
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
@@ -167,7 +168,7 @@ fn eval_map(files: &[SceneFile], model: Option<PathBuf>, out: &Path) -> Result<(
         "models": {
             "reconstruction": reconstruction.display().to_string(),
             "reconstruction_sha256": model_hash(&reconstruction)?,
-            "semantic_sha256": model_hash(&models.join("semantic-mini.toml"))?,
+            "semantic_sha256": model_hash(config.models.semantic.as_deref().unwrap_or(&models))?,
         },
         "config": {
             "window": config.window,

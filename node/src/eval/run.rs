@@ -10,7 +10,7 @@ use std::time::Instant;
 
 use glam::DVec3;
 use groupforward_sim::record::{record_to_memory, RecordOptions};
-use groupforward_sim::render::PlacedObject;
+use groupforward_sim::render::{PlacedObject, Scene};
 use groupforward_sim::scene::SceneFile;
 use groupforward_sim::simulation::Simulation;
 use rayon::prelude::*;
@@ -76,6 +76,26 @@ pub fn truth_box(object: &PlacedObject) -> OrientedBox {
     .canonical()
 }
 
+/// The scene's objects as the scorer sees them: class name, ground-truth box, and the pixels
+/// `pixels` reports for each instance id.
+pub fn truth_objects(scene: &Scene, pixels: impl Fn(u16) -> u64) -> Vec<TruthObject> {
+    let classes = groupforward_sim::library::classes();
+    scene
+        .objects
+        .iter()
+        .map(|o| TruthObject {
+            id: o.instance_id,
+            class: classes
+                .iter()
+                .find(|c| c.id == o.class_id)
+                .map_or("object", |c| c.name)
+                .to_owned(),
+            bbox: truth_box(o),
+            pixels: pixels(o.instance_id),
+        })
+        .collect()
+}
+
 /// Run `file` through the node's stages with `models`; `config` gives the topics, ingest and
 /// window settings (its model paths are not read: `models` is loaded once for all scenes).
 pub fn run_scene(
@@ -113,21 +133,7 @@ pub fn run_scene(
             *total.entry(*id).or_default() += n;
         }
     }
-    let objects: Vec<TruthObject> = sim
-        .scene
-        .objects
-        .iter()
-        .map(|o| TruthObject {
-            id: o.instance_id,
-            class: groupforward_sim::library::classes()
-                .iter()
-                .find(|c| c.id == o.class_id)
-                .map_or("object", |c| c.name)
-                .to_owned(),
-            bbox: truth_box(o),
-            pixels: total.get(&o.instance_id).copied().unwrap_or(0),
-        })
-        .collect();
+    let objects = truth_objects(&sim.scene, |id| total.get(&id).copied().unwrap_or(0));
 
     let routes: HashMap<String, crate::ingest::Route> = Ingest::routes(&config.cameras, &config.tf)
         .into_iter()

@@ -337,6 +337,9 @@ impl SceneMap {
         let boxes: Vec<_> = self.instances.iter().map(|i| i.oriented_box()).collect();
         let mut folded = Vec::new();
         let n = self.instances.len();
+        // Point footprints only where boxes alone do not decide, each built once (again after its
+        // instance absorbs another).
+        let mut footprints: Vec<Option<Footprint>> = (0..n).map(|_| None).collect();
         // Oldest first, so every duplicate folds into the instance the user saw first.
         let mut order: Vec<usize> = (0..n).collect();
         order.sort_by_key(|&i| (self.instances[i].first_seen_nanos, i));
@@ -351,18 +354,29 @@ impl SceneMap {
                 let (pa, pb) = (&self.instances[a].prototype, &self.instances[b].prototype);
                 let similar =
                     !pa.is_empty() && !pb.is_empty() && cosine(pa, pb) >= p.duplicate_similarity;
-                let overlapping = || {
-                    let (fa, fb) = (
-                        Footprint::new(&self.instances[a].gaussians, p.voxel),
-                        Footprint::new(&self.instances[b].gaussians, p.voxel),
-                    );
-                    fa.overlap(&fb, 1.5 * fa.spacing.max(fb.spacing)) >= 0.5
+                if !similar {
+                    continue;
+                }
+                let duplicate = boxes[a].iou(&boxes[b]) >= p.duplicate_iou || {
+                    for k in [a, b] {
+                        if footprints[k].is_none() {
+                            footprints[k] =
+                                Some(Footprint::new(&self.instances[k].gaussians, p.voxel));
+                        }
+                    }
+                    match (&footprints[a], &footprints[b]) {
+                        (Some(fa), Some(fb)) => {
+                            fa.overlap(fb, 1.5 * fa.spacing.max(fb.spacing)) >= 0.5
+                        }
+                        _ => false,
+                    }
                 };
-                if similar && (boxes[a].iou(&boxes[b]) >= p.duplicate_iou || overlapping()) {
-                    let duplicate = self.instances[b].clone();
-                    self.instances[a].absorb(&duplicate, p);
+                if duplicate {
+                    let absorbed = self.instances[b].clone();
+                    self.instances[a].absorb(&absorbed, p);
+                    footprints[a] = None;
                     keep[b] = false;
-                    folded.push((duplicate.id, self.instances[a].id.clone()));
+                    folded.push((absorbed.id, self.instances[a].id.clone()));
                 }
             }
         }

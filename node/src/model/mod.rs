@@ -58,6 +58,18 @@ impl Default for ModelsSection {
 }
 
 impl ModelsSection {
+    /// The default models with their manifests looked up in `dir` instead of `models/` of the
+    /// working directory (the demo, `eval` and tests use the repository's `models/`).
+    pub fn shipped_in(dir: &Path) -> Self {
+        let under = |default: &str| dir.join(default.trim_start_matches("models/"));
+        Self {
+            text_encoder: under(DEFAULT_TEXT_ENCODER),
+            reconstruction: Some(under(DEFAULT_RECONSTRUCTION)),
+            semantic: Some(under(DEFAULT_SEMANTIC)),
+            ..Self::default()
+        }
+    }
+
     pub fn session_options(&self) -> SessionOptions {
         SessionOptions {
             provider: self.provider,
