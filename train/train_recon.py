@@ -199,7 +199,7 @@ def main():
                              sharp_gate=args.sharp_gate, posed=args.posed, sweep_depth=args.sweep_depth > 0)
     if args.init:
         # Loaded into the model the flags built, so an architecture that differs fails loudly.
-        state = model_from_file(args.init, args.mode).state_dict()
+        state = model_from_file(args.init, args.mode, args.guided).state_dict()
         if 'instance_guide_sigmas' in state:
             model.enable_guided_upsampling(*state['instance_guide_sigmas'].tolist())
         model.load_state_dict(state)

@@ -449,6 +449,8 @@ pub mod gf_msgs {
         pub frames_rejected: u64,
         pub rate_hz: f32,
         pub last_stamp: Time,
+        pub depth_pixels: u64,
+        pub depth_pixels_invalid: u64,
     }
 
     #[derive(Debug, Clone, PartialEq, Eq, Default, Serialize, Deserialize)]

@@ -130,6 +130,10 @@ pub struct WindowOutput {
     /// Why this window's instances carry no semantic prototype, when a semantic model was given
     /// but failed (the window is kept: geometry alone then associates it).
     pub semantics_error: Option<String>,
+    /// RGB-D: model pixels without valid sensor depth (ingest marked them), never lifted.
+    pub invalid_depth_pixels: usize,
+    /// Why the window built nothing (no valid depth in any view); `None` when it ran.
+    pub skipped: Option<String>,
 }
 
 /// Run the model on `frames`, group the embeddings, and split the Gaussians by instance. With a
@@ -156,7 +160,26 @@ pub fn window_pass(
     if model.mode() == InputMode::Rgbd {
         use_sensor_depth(&mut prediction, &views);
     }
+    let invalid_depth_pixels = prediction
+        .depth
+        .iter()
+        .filter(|d| !(d.is_finite() && **d > 0.0))
+        .count();
     let gaussians = model.to_gaussians(&prediction, &views)?;
+    if gaussians.is_empty() {
+        return Ok(WindowOutput {
+            instances: Vec::new(),
+            views: Vec::new(),
+            gaussians: 0,
+            noise: 0,
+            semantics_error: None,
+            invalid_depth_pixels,
+            skipped: Some(format!(
+                "no valid depth in any of the {} views: nothing to lift",
+                frames.len()
+            )),
+        });
+    }
     let grouped = group(
         &gaussians.embeddings,
         gaussians.embedding_dim.max(1),
@@ -257,6 +280,8 @@ pub fn window_pass(
         gaussians: gaussians.len(),
         noise,
         semantics_error,
+        invalid_depth_pixels,
+        skipped: None,
     })
 }
 

@@ -16,6 +16,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use rayon::prelude::*;
 use serde::Serialize;
 
+use crate::effects::Preset;
 use crate::library;
 use crate::procedural::{generate_with, ProceduralOptions, Split};
 use crate::simulation::{SimView, Simulation};
@@ -52,6 +53,9 @@ pub struct DatasetOptions {
     pub width: u32,
     pub height: u32,
     pub fov_x_deg: f64,
+    /// Effects drawn per sample from this preset ([`Preset::sample_effects`]); `None` renders
+    /// clean.
+    pub effects: Option<Preset>,
 }
 
 impl Default for DatasetOptions {
@@ -65,6 +69,7 @@ impl Default for DatasetOptions {
             width: 128,
             height: 96,
             fov_x_deg: 90.0,
+            effects: None,
         }
     }
 }
@@ -89,6 +94,8 @@ struct DatasetManifest<'a> {
     height: u32,
     fov_x_deg: f64,
     depth_scale: f64,
+    /// The effects preset samples were drawn from (`clean` when none).
+    effects: String,
     classes: Vec<ClassEntry>,
     scenes: &'a [String],
     /// Share of pixels showing an object (not the room), over all views.
@@ -265,8 +272,11 @@ fn write_sample(
         frames: window + CANDIDATE_STARTS * options.frames_between_views,
         rate_hz: 10.0,
     };
-    let file = generate_with(options.split, index, &procedural)
+    let mut file = generate_with(options.split, index, &procedural)
         .ok_or_else(|| DatasetError::Invalid(format!("no scene {index} in {}", options.split)))?;
+    if let Some(preset) = options.effects {
+        file.effects = preset.sample_effects(file.seed);
+    }
     let name = file.name.clone();
     let sim =
         Simulation::new(file).map_err(|e| DatasetError::Scene(name.clone(), e.to_string()))?;
@@ -358,6 +368,9 @@ pub fn write_dataset(
         height: options.height,
         fov_x_deg: options.fov_x_deg,
         depth_scale: 0.001,
+        effects: options
+            .effects
+            .map_or_else(|| "clean".to_owned(), |p| p.name()),
         classes: library::classes()
             .into_iter()
             .map(|c| ClassEntry {

@@ -71,6 +71,7 @@ pub(crate) enum Stream {
     FrameDrops = 5,
     TimestampJitter = 6,
     OdometryDrift = 7,
+    DatasetDraw = 8,
 }
 
 /// A generator for one (scene seed, effect, frame, camera): frames can be rendered in any order
@@ -182,6 +183,110 @@ impl Effect {
             Self::LensDistortion { k1, k2, p1, p2, k3 } => Some(PlumbBob { k1, k2, p1, p2, k3 }),
             _ => None,
         }
+    }
+}
+
+/// A named set of effects: what `--effects <preset>` and a scene file's `effects_preset` expand to.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Preset {
+    /// No effect: the exact render.
+    Clean,
+    /// A consumer depth camera on a moving robot: range-squared depth noise (6 mm at 1 m), 3%
+    /// random depth dropout plus the pixels at 8 cm discontinuities, sensor noise, motion blur,
+    /// exposure hunting, 5% frame drops and mild odometry drift.
+    Realistic,
+    /// Only random depth dropout with this probability (the dropout axis of the benchmarks).
+    Dropout(f64),
+}
+
+impl Preset {
+    /// `clean`, `realistic`, or `dropout:<probability>` (e.g. `dropout:0.1`).
+    pub fn parse(name: &str) -> Result<Self, String> {
+        match name {
+            "clean" => Ok(Self::Clean),
+            "realistic" => Ok(Self::Realistic),
+            _ => {
+                let probability = name
+                    .strip_prefix("dropout:")
+                    .and_then(|p| p.parse::<f64>().ok())
+                    .filter(|p| (0.0..=1.0).contains(p))
+                    .ok_or_else(|| {
+                        format!(
+                            "unknown effects preset `{name}` (clean, realistic, dropout:<0..1>)"
+                        )
+                    })?;
+                Ok(Self::Dropout(probability))
+            }
+        }
+    }
+
+    pub fn name(&self) -> String {
+        match self {
+            Self::Clean => "clean".into(),
+            Self::Realistic => "realistic".into(),
+            Self::Dropout(p) => format!("dropout:{p}"),
+        }
+    }
+
+    pub fn effects(&self) -> Vec<Effect> {
+        match *self {
+            Self::Clean => Vec::new(),
+            Self::Realistic => vec![
+                Effect::MotionBlur {
+                    exposure_secs: 0.015,
+                    samples: 3,
+                },
+                Effect::Exposure {
+                    min_gain: 0.85,
+                    max_gain: 1.15,
+                    period_secs: 4.0,
+                },
+                Effect::SensorNoise { sigma: 3.0 },
+                Effect::DepthNoise { sigma_at_1m: 0.006 },
+                Effect::DepthDropout {
+                    probability: 0.03,
+                    edge_m: 0.08,
+                },
+                Effect::FrameDrops { probability: 0.05 },
+                Effect::OdometryDrift {
+                    sigma_m: 0.004,
+                    sigma_yaw_deg: 0.1,
+                },
+            ],
+            // Edges only beyond any room's depth range: random pixels alone.
+            Self::Dropout(probability) if probability > 0.0 => vec![Effect::DepthDropout {
+                probability,
+                edge_m: 1e3,
+            }],
+            Self::Dropout(_) => Vec::new(),
+        }
+    }
+
+    /// The effects of one training sample of a dataset rendered with this preset (`sim dataset
+    /// --effects`): `realistic` is drawn per scene, so the model sees the whole range a robot
+    /// meets: a quarter of the scenes clean, the others with the preset's camera effects and a
+    /// random-dropout probability of 1, 3, 10 or 30% (the benchmark's dropout axis). Frame drops
+    /// are left out: a dataset sample is a window of frames, not a stream.
+    pub fn sample_effects(&self, seed: u64) -> Vec<Effect> {
+        let mut rng = rng(seed, Stream::DatasetDraw, 0, 0);
+        let mut effects = match self {
+            Self::Realistic => {
+                if rng.random::<f64>() < 0.25 {
+                    return Vec::new();
+                }
+                let dropout = [0.01, 0.03, 0.1, 0.3][rng.random_range(0..4)];
+                let mut effects = self.effects();
+                for effect in &mut effects {
+                    if let Effect::DepthDropout { probability, .. } = effect {
+                        *probability = dropout;
+                    }
+                }
+                effects
+            }
+            _ => self.effects(),
+        };
+        effects.retain(|e| !matches!(e, Effect::FrameDrops { .. }));
+        effects
     }
 }
 

@@ -164,6 +164,7 @@ pub fn generate_with(split: Split, index: u64, options: &ProceduralOptions) -> O
             rate_hz: options.rate_hz,
         },
         effects: Vec::new(),
+        effects_preset: None,
     };
 
     // Floor objects: a mix of classes where repeats are common.

@@ -9,7 +9,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-use crate::effects::Effect;
+use crate::effects::{Effect, Preset};
 use crate::library;
 use crate::render::{Pinhole, PlacedObject, Scene};
 
@@ -47,6 +47,10 @@ pub struct SceneFile {
     /// The effects to simulate, in this order; none by default (the clean render).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub effects: Vec<Effect>,
+    /// A named effect set (`clean`, `realistic`, `dropout:<p>`) applied under `effects`: an
+    /// effect listed in `effects` replaces the preset's of the same kind.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub effects_preset: Option<String>,
 }
 
 #[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
@@ -154,6 +158,28 @@ pub const BUILTIN: &[(&str, &str)] = &[
 ];
 
 impl SceneFile {
+    /// The effects to simulate: the preset's (if any) with the listed ones replacing those of the
+    /// same kind, then the other listed ones.
+    pub fn resolved_effects(&self) -> Result<Vec<Effect>> {
+        let Some(name) = &self.effects_preset else {
+            return Ok(self.effects.clone());
+        };
+        let preset = Preset::parse(name).map_err(SceneError::Invalid)?;
+        let mut effects: Vec<Effect> = preset
+            .effects()
+            .into_iter()
+            .filter(|e| self.effects.iter().all(|listed| listed.kind() != e.kind()))
+            .collect();
+        effects.extend(self.effects.iter().cloned());
+        Ok(effects)
+    }
+
+    /// Replace the scene's effects by a preset's (what `--effects <preset>` does to every scene).
+    pub fn apply_preset(&mut self, preset: Preset) {
+        self.effects = preset.effects();
+        self.effects_preset = None;
+    }
+
     /// A built-in example scene by name.
     pub fn builtin(name: &str) -> Option<Self> {
         let (_, text) = BUILTIN.iter().find(|(n, _)| *n == name)?;

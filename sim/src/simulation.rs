@@ -78,7 +78,9 @@ pub struct SimFrame {
 }
 
 impl Simulation {
-    pub fn new(file: SceneFile) -> Result<Self, SceneError> {
+    pub fn new(mut file: SceneFile) -> Result<Self, SceneError> {
+        file.effects = file.resolved_effects()?;
+        file.effects_preset = None;
         let scene = file.build()?;
         let poses = file.robot_poses()?;
         if poses.is_empty() {

@@ -76,3 +76,53 @@ fn written_samples_reproject_onto_their_objects() {
     }
     assert!(checked > 50, "only {checked} object pixels");
 }
+
+#[test]
+fn a_dataset_with_effects_draws_them_per_sample_and_says_so() {
+    use groupforward_sim::effects::Preset;
+    let dir = tempfile::tempdir().unwrap();
+    let options = DatasetOptions {
+        split: Split::Train,
+        samples: 8,
+        views: 2,
+        width: 48,
+        height: 36,
+        effects: Some(Preset::Realistic),
+        ..DatasetOptions::default()
+    };
+    write_dataset(dir.path(), &options, &|_| {}).unwrap();
+    let manifest: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.path().join("dataset.json")).unwrap()).unwrap();
+    assert_eq!(manifest["effects"], "realistic");
+    // Depth PNGs carry dropout as 0 (what the training reader takes as invalid), in different
+    // amounts per sample: some clean, some with holes.
+    let mut invalid_fractions = Vec::new();
+    for scene in manifest["scenes"].as_array().unwrap() {
+        let sample = dir.path().join(scene.as_str().unwrap());
+        let cameras: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(sample.join("cameras.json")).unwrap()).unwrap();
+        let view = &cameras["views"][0];
+        let depth = image::open(sample.join(view["depth"].as_str().unwrap()))
+            .unwrap()
+            .to_luma16();
+        assert_eq!(depth.dimensions(), (48, 36));
+        let zeros = depth.pixels().filter(|p| p.0[0] == 0).count();
+        invalid_fractions.push(zeros as f64 / (48.0 * 36.0));
+    }
+    assert!(invalid_fractions.contains(&0.0), "{invalid_fractions:?}");
+    assert!(
+        invalid_fractions.iter().any(|&f| f > 0.01),
+        "{invalid_fractions:?}"
+    );
+    // The draw is the scene's: the same options write the same files.
+    let again = tempfile::tempdir().unwrap();
+    write_dataset(again.path(), &options, &|_| {}).unwrap();
+    let first = manifest["scenes"][0].as_str().unwrap();
+    for file in ["view_00_rgb.png", "view_00_depth.png"] {
+        assert_eq!(
+            std::fs::read(dir.path().join(first).join(file)).unwrap(),
+            std::fs::read(again.path().join(first).join(file)).unwrap(),
+            "{file}"
+        );
+    }
+}

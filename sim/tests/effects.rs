@@ -306,3 +306,56 @@ fn a_listed_twice_effect_is_an_error() {
     ];
     assert!(Simulation::new(file).is_err());
 }
+
+#[test]
+fn every_preset_renders_deterministically_and_a_scene_file_can_name_one() {
+    use groupforward_sim::effects::Preset;
+    for name in ["clean", "realistic", "dropout:0.1", "dropout:0"] {
+        let preset = Preset::parse(name).unwrap();
+        let mut file = base();
+        file.cameras[0].width = 320;
+        file.cameras[0].height = 240;
+        file.apply_preset(preset);
+        let once = frames(&Simulation::new(file.clone()).unwrap(), 6);
+        let twice = frames(&Simulation::new(file).unwrap(), 6);
+        assert_eq!(compare(&once, &twice), Changed::default(), "{name}");
+        let invalid: usize = once
+            .iter()
+            .flat_map(|f| &f.views)
+            .map(|v| v.sensor_depth().iter().filter(|z| !z.is_finite()).count())
+            .sum();
+        let pixels: usize = once
+            .iter()
+            .flat_map(|f| &f.views)
+            .map(|v| v.sensor_depth().len())
+            .sum();
+        let fraction = invalid as f64 / pixels.max(1) as f64;
+        match preset {
+            Preset::Clean | Preset::Dropout(0.0) => assert_eq!(invalid, 0, "{name}"),
+            // 3% random plus the pixels along depth edges.
+            Preset::Realistic => assert!((0.03..0.3).contains(&fraction), "{name}: {fraction}"),
+            Preset::Dropout(p) => assert!((fraction - p).abs() < 0.02, "{name}: {fraction}"),
+        }
+    }
+    for bad in ["", "noisy", "dropout:", "dropout:1.5", "dropout:x"] {
+        assert!(Preset::parse(bad).is_err(), "{bad}");
+    }
+
+    // A scene file's preset, with one listed effect replacing the preset's of the same kind.
+    let mut file = base();
+    file.effects_preset = Some("realistic".into());
+    file.effects = vec![Effect::SensorNoise { sigma: 9.0 }];
+    let effects = file.resolved_effects().unwrap();
+    assert_eq!(effects.len(), Preset::Realistic.effects().len());
+    let noise: Vec<_> = effects
+        .iter()
+        .filter(|e| e.kind() == "sensor_noise")
+        .collect();
+    assert_eq!(noise, [&Effect::SensorNoise { sigma: 9.0 }]);
+    assert!(Simulation::new(file.clone()).is_ok());
+    file.effects_preset = Some("fog".into());
+    assert!(
+        Simulation::new(file).is_err(),
+        "an unknown preset is an error"
+    );
+}

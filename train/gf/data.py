@@ -6,7 +6,9 @@ view_NN_{rgb,depth,instance,class}.png. Depth PNGs are millimetres (0 = invalid)
 
 RGB-D inputs are built exactly as the node builds them (node/src/model/reconstruction.rs): world XYZ
 back-projected from depth with each view's pose, centred on the window's mean camera centre and divided
-by `points_scale`; invalid depth becomes the centre (0). The posed RGB model takes the views'
+by `points_scale`; invalid depth (0, NaN) is first filled from its farthest valid 4-neighbour, pass after
+pass (`fill_invalid_depth`, the node's `fill_invalid_depth`), and only a view without any valid depth
+becomes the centre (0). The posed RGB model takes the views'
 intrinsics (`k`) and their poses in that same frame (`world_cameras`) instead of points.
 """
 
@@ -16,6 +18,8 @@ from pathlib import Path
 import numpy as np
 import torch
 from PIL import Image
+
+from .depth_fill import fill_invalid_depth
 
 POINTS_SCALE = 3.0
 
@@ -87,7 +91,7 @@ def world_points(depth, intrinsics, poses, scale=POINTS_SCALE):
     out = np.zeros((views, 3, height, width), np.float32)
     for i in range(views):
         k = intrinsics[i]
-        z = depth[i].astype(np.float64)
+        z = fill_invalid_depth(depth[i]).astype(np.float64)
         valid = np.isfinite(z) & (z > 0)
         x = (u - k[0, 2]) / k[0, 0] * z
         y = (v - k[1, 2]) / k[1, 1] * z

@@ -27,8 +27,10 @@ def _number(name):
     return int(re.findall(r'\d+$', name)[0])
 
 
-def recovered_model(path, mode):
-    """GroupForwardMini with the weights of the ONNX file `path` (its room shift included), in eval mode."""
+def recovered_model(path, mode, guided=None):
+    """GroupForwardMini with the weights of the ONNX file `path` (its room shift included), in eval mode.
+    The exporter folds the guided upsampling's widths into constants: a model exported with it is
+    recovered with `guided` = (σ_points, σ_colour), which the output parity then checks."""
     graph = onnx.load(str(path)).graph
     initializers = {t.name: numpy_helper.to_array(t) for t in graph.initializer}
     state = {name[len('model.'):]: torch.from_numpy(value.copy())
@@ -39,7 +41,8 @@ def recovered_model(path, mode):
     missing = [k for k in expected if k not in state]
     renamed = sorted((k for k in initializers if k.startswith('onnx::')), key=_number)
     matrices = [k for k in renamed if k.startswith('onnx::MatMul')]
-    affines = [k for k in renamed if not k.startswith('onnx::MatMul')]
+    # Scalar constants the exporter also renames (`onnx::Pow_*` of the guided upsampling) are not parameters.
+    affines = [k for k in renamed if k.startswith(('onnx::Mul', 'onnx::Add'))]
     vectors = [k for k in missing if expected[k].dim() == 1]
     linears = [k for k in missing if expected[k].dim() == 2]
     if len(vectors) != len(affines) or len(linears) != len(matrices) or len(vectors) + len(linears) != len(missing):
@@ -49,17 +52,20 @@ def recovered_model(path, mode):
         if value.shape != expected[name].shape:
             raise RecoveryError(f'{path}: {source} {value.shape} does not fit {name} {tuple(expected[name].shape)}')
         state[name] = torch.from_numpy(np.ascontiguousarray(value))
+    if guided is not None and 'instance_guide_sigmas' not in state:
+        model.enable_guided_upsampling(*guided)
+        state['instance_guide_sigmas'] = model.instance_guide_sigmas
     model.load_state_dict(state)
     model.eval()
     check_parity(model, path)
     return model
 
 
-def model_from_file(path, mode):
+def model_from_file(path, mode, guided=None):
     """GroupForwardMini with the weights of a train_recon.py checkpoint (.pt) or of an exported model
     (.onnx, recovered as above)."""
     if str(path).endswith('.onnx'):
-        return recovered_model(path, mode)
+        return recovered_model(path, mode, guided)
     return GroupForwardMini.from_state_dict(torch.load(path, map_location='cpu'), mode)
 
 

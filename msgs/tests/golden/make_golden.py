@@ -113,7 +113,8 @@ cases = [
     ('groupforward_msgs/msg/NodeStatus', T('groupforward_msgs/msg/NodeStatus')(
         header=header(9, ''), uptime_secs=12.5,
         cameras=[T('groupforward_msgs/msg/CameraStatus')(name='front', frames_received=10, frames_synced=9,
-                                                         frames_rejected=1, rate_hz=29.5, last_stamp=Time(sec=9, nanosec=1))],
+                                                         frames_rejected=1, rate_hz=29.5, last_stamp=Time(sec=9, nanosec=1),
+                                                         depth_pixels=76800, depth_pixels_invalid=4321)],
         tf_received=100, tf_rejected=2,
         rejections=[T('groupforward_msgs/msg/RejectCount')(reason='size_mismatch', count=1)])),
     ('groupforward_msgs/srv/Refer_Request', T('groupforward_msgs/srv/Refer_Request')(

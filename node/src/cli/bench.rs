@@ -1,4 +1,4 @@
-//! `groupforward bench ...`: measurements written as CSV and Markdown.
+//! `groupforward bench ...`: measurements written as CSV and Markdown (and an SVG plot).
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -50,6 +50,157 @@ pub enum BenchCommand {
         #[arg(long, default_value = "target/bench/graph")]
         out: PathBuf,
     },
+    /// The map against random depth dropout: `eval map` on the same scenes with each level's
+    /// `dropout:<p>` effect (0 = clean); writes `<out>.csv`, `<out>.md` and `<out>.svg`.
+    Dropout {
+        /// Probabilities of a depth pixel being dropped, comma separated.
+        #[arg(long, value_delimiter = ',', default_value = "0,0.01,0.03,0.1,0.3")]
+        levels: Vec<f64>,
+        #[arg(long, default_value = "benchmark")]
+        split: String,
+        #[arg(long, default_value_t = 5)]
+        scenes: u64,
+        #[arg(long, default_value_t = 0)]
+        first_index: u64,
+        /// Reconstruction model manifest (default: the shipped RGB-D model).
+        #[arg(long)]
+        model: Option<PathBuf>,
+        #[arg(long, default_value = "target/bench/dropout")]
+        out: PathBuf,
+    },
+}
+
+/// The map's scores at each dropout level, on the same scenes.
+fn dropout_bench(
+    levels: &[f64],
+    files: &[groupforward_sim::scene::SceneFile],
+    model: Option<PathBuf>,
+    out: &Path,
+) -> Result<()> {
+    use groupforward_sim::effects::Preset;
+    let config = crate::eval::eval_config(model);
+    let mut models = groupforward::window::WindowModels::load(&config.models, &config.semantics)
+        .context("loading the models (`make setup` installs ONNX Runtime)")?;
+    if let Some(dir) = out.parent() {
+        std::fs::create_dir_all(dir)?;
+    }
+    let mut csv = String::from(
+        "dropout,invalid_depth_fraction,recall_at_25,recall_at_50,precision,duplicate_rate,room_instances,objects_scored\n",
+    );
+    let mut md = String::from(
+        "| dropout | invalid depth | recall@0.25 | recall@0.5 | precision | duplicates | room |\n| ---: | ---: | ---: | ---: | ---: | ---: | ---: |\n",
+    );
+    let mut series: [(&str, Vec<(f64, f64)>); 3] = [
+        ("recall@0.25", Vec::new()),
+        ("recall@0.5", Vec::new()),
+        ("precision", Vec::new()),
+    ];
+    for &level in levels {
+        let preset = Preset::Dropout(level);
+        let mut scenes = files.to_vec();
+        for file in &mut scenes {
+            file.apply_preset(preset);
+        }
+        let scored = crate::eval::score_scenes(&scenes, &config, &mut models, &preset.name())?;
+        let s = scored.total.summary();
+        let invalid = crate::eval::invalid_fraction(&scored.depth);
+        csv.push_str(&format!(
+            "{level},{invalid:.4},{:.4},{:.4},{:.4},{:.4},{},{}\n",
+            s.recall_at_25,
+            s.recall_at_50,
+            s.precision,
+            s.duplicate_rate,
+            s.room_instances,
+            s.objects_scored
+        ));
+        md.push_str(&format!(
+            "| {:.0}% | {:.1}% | {:.1}% | {:.1}% | {:.1}% | {:.1}% | {} |\n",
+            100.0 * level,
+            100.0 * invalid,
+            100.0 * s.recall_at_25,
+            100.0 * s.recall_at_50,
+            100.0 * s.precision,
+            100.0 * s.duplicate_rate,
+            s.room_instances
+        ));
+        for (i, value) in [s.recall_at_25, s.recall_at_50, s.precision]
+            .into_iter()
+            .enumerate()
+        {
+            series[i].1.push((100.0 * level, 100.0 * value));
+        }
+        eprintln!(
+            "dropout {:.0}%: recall@0.25 {:.1}%, precision {:.1}%",
+            100.0 * level,
+            100.0 * s.recall_at_25,
+            100.0 * s.precision
+        );
+    }
+    md.push_str(&format!(
+        "\n{} scenes; reproduce: `groupforward bench dropout`.\n",
+        files.len()
+    ));
+    percent_chart(
+        &out.with_extension("svg"),
+        "The map against random depth dropout",
+        "depth pixels dropped (%)",
+        &series,
+    )?;
+    std::fs::write(out.with_extension("csv"), csv)?;
+    std::fs::write(out.with_extension("md"), &md)?;
+    print!("{md}");
+    Ok(())
+}
+
+/// A linear chart of percentages (0-100 on y) as SVG: one series per (name, points).
+fn percent_chart(
+    path: &Path,
+    title: &str,
+    x_label: &str,
+    series: &[(&str, Vec<(f64, f64)>)],
+) -> Result<()> {
+    use plotters::prelude::*;
+    let x1 = series
+        .iter()
+        .flat_map(|(_, s)| s.iter().map(|p| p.0))
+        .fold(1.0f64, f64::max);
+    let root = SVGBackend::new(path, (720, 420)).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(title, ("sans-serif", 20))
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(50)
+        .build_cartesian_2d(0.0..x1, 0.0..100.0)
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    chart
+        .configure_mesh()
+        .light_line_style(WHITE)
+        .x_desc(x_label)
+        .y_desc("%")
+        .draw()
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    for (i, (name, data)) in series.iter().enumerate() {
+        let color = Palette99::pick(i).to_rgba();
+        chart
+            .draw_series(LineSeries::new(data.clone(), color.stroke_width(2)))
+            .map_err(|e| anyhow::anyhow!("{e}"))?
+            .label(*name)
+            .legend(move |(x, y)| {
+                PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(2))
+            });
+        chart
+            .draw_series(data.iter().map(|p| Circle::new(*p, 3, color.filled())))
+            .map_err(|e| anyhow::anyhow!("{e}"))?;
+    }
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .draw()
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    root.present().map_err(|e| anyhow::anyhow!("{e}"))?;
+    Ok(())
 }
 
 /// A cube of Gaussians (`side`³ on a 4 cm grid) centred at `center`.
@@ -263,6 +414,20 @@ pub fn run(command: BenchCommand) -> Result<()> {
             window,
             out,
         } => graph_bench(&instances, window, &out),
+        BenchCommand::Dropout {
+            levels,
+            split,
+            scenes,
+            first_index,
+            model,
+            out,
+        } => {
+            if let Some(bad) = levels.iter().find(|l| !(0.0..=1.0).contains(*l)) {
+                bail!("dropout level {bad} is not a probability");
+            }
+            let files = crate::eval::split_scenes(&split, first_index, scenes)?;
+            dropout_bench(&levels, &files, model, &out)
+        }
     }
 }
 

@@ -2,6 +2,7 @@
 
 use anyhow::{Context, Result};
 use groupforward::demo::{run_demo, DemoOptions, DemoReport};
+use groupforward_sim::effects::Preset;
 
 use crate::sim::load_scene;
 
@@ -14,6 +15,10 @@ pub struct DemoArgs {
     /// Replay speed factor of the recorded bag.
     #[arg(long, default_value_t = 2.0)]
     rate: f64,
+    /// Replace the scene's effects by a preset: `clean`, `realistic` (a consumer depth camera on
+    /// a moving robot), `dropout:<p>`.
+    #[arg(long)]
+    effects: Option<String>,
 }
 
 pub fn run(args: DemoArgs) -> Result<()> {
@@ -23,6 +28,10 @@ pub fn run(args: DemoArgs) -> Result<()> {
     };
     if let Some(spec) = args.scene {
         options.scene = load_scene(&spec)?;
+    }
+    if let Some(name) = &args.effects {
+        let preset = Preset::parse(name).map_err(anyhow::Error::msg)?;
+        options.scene.apply_preset(preset);
     }
     let report = run_demo(&options).context("running the demo")?;
     print_report(&report);
@@ -46,6 +55,15 @@ fn print_report(report: &DemoReport) {
             "  camera {:<8} received {:>4}  synced {:>4}  rejected {:>3}",
             camera.name, camera.frames_received, camera.frames_synced, camera.frames_rejected
         );
+        if camera.depth_pixels > 0 {
+            println!(
+                "  camera {:<8} depth: {} of {} pixels invalid ({:.1}%: no measurement, out of range or isolated), none lifted",
+                camera.name,
+                camera.depth_pixels_invalid,
+                camera.depth_pixels,
+                100.0 * camera.depth_pixels_invalid as f64 / camera.depth_pixels as f64
+            );
+        }
     }
     println!(
         "  tf: {} transforms accepted, {} rejected; {} malformed messages published on purpose",

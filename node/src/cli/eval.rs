@@ -10,9 +10,11 @@ use anyhow::{bail, Context, Result};
 use clap::Subcommand;
 use groupforward::config::Config;
 use groupforward::eval::run::{run_scene, SceneRun};
-use groupforward::eval::score::{score_map, score_windows, Counts, Summary};
+use groupforward::eval::score::{score_map, score_windows, Counts, ObjectRow, Summary};
+use groupforward::ingest::DepthValidity;
 use groupforward::model::ModelsSection;
 use groupforward::window::WindowModels;
+use groupforward_sim::effects::Preset;
 use groupforward_sim::procedural::{generate, Split};
 use groupforward_sim::scene::SceneFile;
 use sha2::{Digest, Sha256};
@@ -43,6 +45,9 @@ pub enum EvalCommand {
         /// Reconstruction model manifest (default: the shipped RGB-D model).
         #[arg(long)]
         model: Option<PathBuf>,
+        /// Replace every scene's effects by a preset: `clean`, `realistic`, `dropout:<p>`.
+        #[arg(long)]
+        effects: Option<String>,
         #[arg(long, default_value = "target/eval/map")]
         out: PathBuf,
     },
@@ -56,24 +61,45 @@ pub fn run(command: EvalCommand) -> Result<()> {
             first_index,
             scene,
             model,
+            effects,
             out,
         } => {
-            let files = if scene.is_empty() {
-                let Some(split_kind) = Split::parse(&split) else {
-                    bail!("unknown split `{split}` (train, val, benchmark)");
-                };
-                (first_index..first_index + scenes)
-                    .map(|i| {
-                        generate(split_kind, i)
-                            .with_context(|| format!("no scene {i} in split {split}"))
-                    })
-                    .collect::<Result<Vec<SceneFile>>>()?
+            let mut files = if scene.is_empty() {
+                split_scenes(&split, first_index, scenes)?
             } else {
                 scene.iter().map(|s| load_scene(s)).collect::<Result<_>>()?
             };
-            eval_map(&files, model, &out)
+            if let Some(name) = &effects {
+                let preset = Preset::parse(name).map_err(anyhow::Error::msg)?;
+                for file in &mut files {
+                    file.apply_preset(preset);
+                }
+            }
+            eval_map(&files, model, effects.as_deref(), &out)
         }
     }
+}
+
+/// Scenes `first_index..first_index + count` of a procedural split.
+pub fn split_scenes(split: &str, first_index: u64, count: u64) -> Result<Vec<SceneFile>> {
+    let Some(split_kind) = Split::parse(split) else {
+        bail!("unknown split `{split}` (train, val, benchmark)");
+    };
+    (first_index..first_index + count)
+        .map(|i| generate(split_kind, i).with_context(|| format!("no scene {i} in split {split}")))
+        .collect()
+}
+
+/// The node's default config with the shipped models, or `model` as the reconstruction model.
+pub fn eval_config(model: Option<PathBuf>) -> Config {
+    let mut config = Config {
+        models: ModelsSection::shipped_in(&shipped_models()),
+        ..Config::default()
+    };
+    if let Some(model) = model {
+        config.models.reconstruction = Some(model);
+    }
+    config
 }
 
 fn shipped_models() -> PathBuf {
@@ -92,22 +118,29 @@ fn hex_digest(bytes: &[u8]) -> String {
     bytes.iter().map(|b| format!("{b:02x}")).collect()
 }
 
-fn eval_map(files: &[SceneFile], model: Option<PathBuf>, out: &Path) -> Result<()> {
-    let mut config = Config::default();
-    let models = shipped_models();
-    config.models = ModelsSection::shipped_in(&models);
-    if let Some(model) = model {
-        config.models.reconstruction = Some(model);
-    }
-    let mut window_models = WindowModels::load(&config.models, &config.semantics)
-        .context("loading the models (`make setup` installs ONNX Runtime)")?;
-    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    let bar = progress_bar(files.len() as u64, "eval map");
+/// What scoring a set of scenes gave.
+pub struct Scored {
+    pub total: Counts,
+    pub rows: Vec<ObjectRow>,
+    pub per_scene: Vec<(String, Summary, usize)>,
+    pub window_millis: Vec<f64>,
+    pub depth: DepthValidity,
+}
+
+/// Replay each scene through the node's stages with `window_models` and score its map, with a
+/// progress bar.
+pub fn score_scenes(
+    files: &[SceneFile],
+    config: &Config,
+    window_models: &mut WindowModels,
+    what: &str,
+) -> Result<Scored> {
+    let bar = progress_bar(files.len() as u64, what);
     let (mut total, mut rows, mut per_scene) = (Counts::default(), Vec::new(), Vec::new());
-    let mut window_millis = Vec::new();
+    let (mut window_millis, mut depth) = (Vec::new(), DepthValidity::default());
     for file in files {
         bar.set_message(file.name.clone());
-        let run: SceneRun = run_scene(file, &config, &mut window_models)
+        let run: SceneRun = run_scene(file, config, window_models)
             .with_context(|| format!("scene {}", file.name))?;
         let (scene_rows, mut counts) = score_map(
             &run.scene,
@@ -124,10 +157,43 @@ fn eval_map(files: &[SceneFile], model: Option<PathBuf>, out: &Path) -> Result<(
         total.add(&counts);
         rows.extend(scene_rows);
         window_millis.extend(run.window_millis.iter().copied());
+        depth.add(&run.depth);
         per_scene.push((run.scene.clone(), counts.summary(), run.windows.len()));
         bar.inc(1);
     }
     bar.finish_and_clear();
+    Ok(Scored {
+        total,
+        rows,
+        per_scene,
+        window_millis,
+        depth,
+    })
+}
+
+/// Share of the depth pixels ingest received that were invalid.
+pub fn invalid_fraction(depth: &DepthValidity) -> f64 {
+    depth.invalid() as f64 / depth.pixels.max(1) as f64
+}
+
+fn eval_map(
+    files: &[SceneFile],
+    model: Option<PathBuf>,
+    effects: Option<&str>,
+    out: &Path,
+) -> Result<()> {
+    let config = eval_config(model);
+    let models = shipped_models();
+    let mut window_models = WindowModels::load(&config.models, &config.semantics)
+        .context("loading the models (`make setup` installs ONNX Runtime)")?;
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    let Scored {
+        total,
+        rows,
+        per_scene,
+        mut window_millis,
+        depth,
+    } = score_scenes(files, &config, &mut window_models, "eval map")?;
     let summary = total.summary();
     let mut csv = csv_writer(&out.join("objects.csv"))?;
     writeln!(
@@ -164,6 +230,14 @@ fn eval_map(files: &[SceneFile], model: Option<PathBuf>, out: &Path) -> Result<(
         "counts": total,
         "scenes": per_scene.iter().map(|(name, s, windows)| serde_json::json!({
             "scene": name, "windows": windows, "summary": s})).collect::<Vec<_>>(),
+        "depth": {
+            "pixels": depth.pixels,
+            "invalid": depth.invalid(),
+            "invalid_fraction": invalid_fraction(&depth),
+            "missing": depth.missing,
+            "out_of_range": depth.out_of_range,
+            "isolated": depth.isolated,
+        },
         "window_millis": {"p50": percentile(0.5), "p99": percentile(0.99), "windows": window_millis.len()},
         "models": {
             "reconstruction": reconstruction.display().to_string(),
@@ -174,6 +248,7 @@ fn eval_map(files: &[SceneFile], model: Option<PathBuf>, out: &Path) -> Result<(
             "window": config.window,
             "min_object_pixels": MIN_OBJECT_PIXELS,
             "min_window_pixels": MIN_WINDOW_PIXELS,
+            "effects": effects.unwrap_or("as the scene files say"),
         },
     });
     std::fs::write(
@@ -183,6 +258,14 @@ fn eval_map(files: &[SceneFile], model: Option<PathBuf>, out: &Path) -> Result<(
     let table = markdown(&summary, &per_scene);
     std::fs::write(out.join("summary.md"), &table)?;
     print!("{table}");
+    println!(
+        "depth: {:.1}% of {} pixels invalid ({} missing, {} out of range, {} isolated), none lifted",
+        100.0 * invalid_fraction(&depth),
+        depth.pixels,
+        depth.missing,
+        depth.out_of_range,
+        depth.isolated
+    );
     println!(
         "window pass to map update: p50 {:.0} ms, p99 {:.0} ms over {} windows; wrote {}",
         percentile(0.5),

@@ -7,6 +7,7 @@ use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
 use clap::Subcommand;
+use groupforward_sim::effects::Preset;
 use groupforward_sim::procedural::{self, Split};
 use groupforward_sim::record::{ColorFormat, DepthFormat, RecordOptions};
 use groupforward_sim::scene::SceneFile;
@@ -42,6 +43,9 @@ pub enum SimCommand {
         /// Leave out the `/gt/...` ground-truth topics.
         #[arg(long)]
         no_ground_truth: bool,
+        /// Replace the scene's effects by a preset: `clean`, `realistic`, `dropout:<p>`.
+        #[arg(long)]
+        effects: Option<String>,
     },
     /// Write a training dataset of procedural scenes.
     Dataset {
@@ -58,6 +62,10 @@ pub enum SimCommand {
         width: u32,
         #[arg(long, default_value_t = 96)]
         height: u32,
+        /// Draw each sample's effects from a preset (`realistic`: a quarter clean, the others a
+        /// consumer depth camera with 1-30% dropout).
+        #[arg(long)]
+        effects: Option<String>,
         #[arg(long)]
         out: PathBuf,
     },
@@ -108,6 +116,7 @@ pub fn run(command: SimCommand) -> Result<()> {
             compressed,
             depth_mm,
             no_ground_truth,
+            effects,
         } => {
             let color = match compressed.as_deref() {
                 None => ColorFormat::Raw,
@@ -125,7 +134,11 @@ pub fn run(command: SimCommand) -> Result<()> {
                 ground_truth: !no_ground_truth,
                 ..RecordOptions::default()
             };
-            let sim = Simulation::new(load_scene(&scene)?)?;
+            let mut file = load_scene(&scene)?;
+            if let Some(name) = &effects {
+                file.apply_preset(Preset::parse(name).map_err(anyhow::Error::msg)?);
+            }
+            let sim = Simulation::new(file)?;
             let bar = progress_bar(sim.frame_count() as u64, "recording");
             let started = Instant::now();
             let summary = groupforward_sim::record::record_to_dir(&sim, &options, &out, &|n| {
@@ -149,9 +162,16 @@ pub fn run(command: SimCommand) -> Result<()> {
             views,
             width,
             height,
+            effects,
             out,
         } => {
+            let effects = effects
+                .as_deref()
+                .map(Preset::parse)
+                .transpose()
+                .map_err(anyhow::Error::msg)?;
             let options = groupforward_sim::dataset::DatasetOptions {
+                effects,
                 split: parse_split(&split)?,
                 first_index,
                 samples,

@@ -18,7 +18,7 @@ use rayon::prelude::*;
 use super::score::{ListedInstance, TruthObject, WindowRecord};
 use crate::config::Config;
 use crate::graph::{GraphError, SceneMap};
-use crate::ingest::Ingest;
+use crate::ingest::{DepthValidity, Ingest};
 use crate::node::Node;
 use crate::recon::boxes::{OrientedBox, DEFAULT_TRIM};
 use crate::window::{WindowError, WindowModels};
@@ -47,6 +47,8 @@ pub struct SceneRun {
     /// Model pass to map update, per window.
     pub window_millis: Vec<f64>,
     pub frames: usize,
+    /// Depth pixels ingest received, and why some were invalid (never lifted).
+    pub depth: DepthValidity,
 }
 
 /// The ground-truth box of a placed object: the union of its parts in its own frame, scaled,
@@ -175,6 +177,12 @@ pub fn run_scene(
             });
         }
     }
+    let mut depth = DepthValidity::default();
+    for camera in 0..node.ingest.camera_count() {
+        if let Some(counters) = node.ingest.camera_counters(camera) {
+            depth.add(&counters.depth);
+        }
+    }
     let structure = |prototype: &[f32]| {
         models
             .vocabulary
@@ -204,5 +212,6 @@ pub fn run_scene(
         windows,
         window_millis,
         frames: sim.frame_count(),
+        depth,
     })
 }

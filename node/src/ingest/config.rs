@@ -11,6 +11,12 @@ pub const DEFAULT_QUEUE_DEPTH: usize = 64;
 pub const DEFAULT_PENDING_FRAMES: usize = 8;
 pub const DEFAULT_MAX_IMAGE_SIDE: u32 = 8192;
 pub const DEFAULT_TF_HISTORY_SECS: f64 = 10.0;
+/// Depth outside this range (metres) is invalid: closer than any consumer depth camera's minimum
+/// range, farther than its useful one.
+pub const DEFAULT_DEPTH_RANGE_M: [f32; 2] = [0.1, 10.0];
+/// A depth pixel none of whose 4-neighbours lies within this relative difference is an isolated
+/// (flying) measurement.
+pub const DEFAULT_ISOLATED_DEPTH_RATIO: f32 = 0.1;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "lowercase")]
@@ -80,6 +86,11 @@ pub struct IngestSection {
     pub pending_frames: usize,
     /// Images wider or taller than this are rejected as absurd.
     pub max_image_side: u32,
+    /// Valid depth range [near, far] in metres; depth outside it is marked invalid.
+    pub depth_range_m: [f32; 2],
+    /// Relative depth difference within which a 4-neighbour agrees; a depth pixel with no
+    /// agreeing neighbour is marked invalid (0 switches the check off).
+    pub isolated_depth_ratio: f32,
 }
 
 impl Default for IngestSection {
@@ -90,6 +101,8 @@ impl Default for IngestSection {
             queue_depth: DEFAULT_QUEUE_DEPTH,
             pending_frames: DEFAULT_PENDING_FRAMES,
             max_image_side: DEFAULT_MAX_IMAGE_SIDE,
+            depth_range_m: DEFAULT_DEPTH_RANGE_M,
+            isolated_depth_ratio: DEFAULT_ISOLATED_DEPTH_RATIO,
         }
     }
 }

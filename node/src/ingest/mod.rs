@@ -8,6 +8,8 @@
 //!
 //! - [`config`]: the stage's config sections (cameras, TF, sync bounds);
 //! - [`decode`]: raw, compressed and depth images;
+//! - [`depth_validity`]: depth without a measurement, out of range or isolated, marked NaN and
+//!   counted;
 //! - [`validate`]: camera intrinsics and transforms;
 //! - [`tf`]: the TF buffer, looked up by stamp;
 //! - [`reject`]: reasons and their counters;
@@ -15,6 +17,7 @@
 
 pub mod config;
 pub mod decode;
+pub mod depth_validity;
 pub mod reject;
 pub mod sync;
 pub mod tf;
@@ -25,6 +28,7 @@ mod test_messages;
 
 pub use config::{CameraConfig, ImageTransport, IngestSection, TfSection};
 pub use decode::{decode_compressed, decode_depth, decode_image};
+pub use depth_validity::{mark_invalid_depth, DepthValidity};
 pub use reject::{Reject, Rejection, Rejections};
 pub use sync::{CameraCounters, Ingest, Route};
 pub use tf::{LookupError, TfBuffer};

@@ -10,6 +10,7 @@ use groupforward_msgs::tf2_msgs::TFMessage;
 
 use super::config::{CameraConfig, ImageTransport, IngestSection, TfSection};
 use super::decode::{decode_compressed, decode_depth, decode_image};
+use super::depth_validity::{mark_invalid_depth, DepthValidity};
 use super::reject::{malformed, Reject, Rejection, Rejections};
 use super::tf::{LookupError, TfBuffer};
 use super::validate::{strip_slash, validate_camera_info, validate_transform};
@@ -47,6 +48,8 @@ pub struct CameraCounters {
     pub synced: u64,
     pub rejected: u64,
     pub last_stamp_nanos: i64,
+    /// Pixels of the accepted depth images, and why some were invalid.
+    pub depth: DepthValidity,
 }
 
 #[derive(Debug)]
@@ -76,6 +79,7 @@ pub struct Ingest {
     max_wait_nanos: i64,
     pending_cap: usize,
     max_side: u32,
+    settings: IngestSection,
     pub rejections: Rejections,
     pub tf_received: u64,
     pub tf_rejected: u64,
@@ -100,6 +104,7 @@ impl Ingest {
             max_wait_nanos: (settings.max_pose_wait_secs * 1e9) as i64,
             pending_cap: settings.pending_frames,
             max_side: settings.max_image_side,
+            settings: settings.clone(),
             rejections: Rejections::default(),
             tf_received: 0,
             tf_rejected: 0,
@@ -217,8 +222,12 @@ impl Ingest {
                 match cdr::decode::<Image>(payload)
                     .map_err(malformed)
                     .and_then(|m| Ok((decode_depth(&m, self.max_side)?, m.header.stamp.as_nanos())))
-                {
-                    Ok((depth, stamp)) => {
+                    .and_then(|(mut depth, stamp)| {
+                        let validity = mark_invalid_depth(&mut depth, &self.settings)?;
+                        Ok((depth, stamp, validity))
+                    }) {
+                    Ok((depth, stamp, validity)) => {
+                        self.cameras[i].counters.depth.add(&validity);
                         let depths = &mut self.cameras[i].depths;
                         depths.push_back((stamp, depth));
                         while depths.len() > self.pending_cap * 2 {

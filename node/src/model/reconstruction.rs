@@ -143,7 +143,11 @@ pub fn resized_camera(camera: &Camera, width: usize, height: usize) -> Camera {
     }
 }
 
-/// Nearest-neighbour resize of depth (depth must not be blended across edges).
+/// Nearest-neighbour resize of depth (depth must not be blended across edges). A median of each
+/// footprint's valid measurements was tried instead (it fills single dropped pixels and halves
+/// the noise): on the clean benchmark it cost 4 points of recall@0.25 and 6 of precision (a
+/// footprint on an edge takes the other side's depth under this pixel's embedding), and on the
+/// realistic preset it changed nothing beyond noise.
 fn resize_depth(depth: &DepthImage, width: usize, height: usize) -> Vec<f32> {
     let (w, h) = (depth.width as usize, depth.height as usize);
     let mut out = Vec::with_capacity(width * height);
@@ -196,6 +200,51 @@ pub fn lifted_pixels(prediction: &Prediction) -> Vec<usize> {
         .collect()
 }
 
+/// Fill invalid depth (NaN, 0, ∞) for the model's input, as `train/gf/data.py` fills it for
+/// training: each pass gives every invalid pixel with a valid 4-neighbour the largest such
+/// neighbour (holes at edges belong to the background, which the foreground occludes), until
+/// nothing changes. A view without any valid pixel stays as it is. Returns the pixels filled.
+/// Only the model's input: a filled pixel is never lifted (see [`use_sensor_depth`]).
+pub fn fill_invalid_depth(metres: &mut [f32], width: usize, height: usize) -> usize {
+    let valid = |z: f32| z.is_finite() && z > 0.0;
+    if width * height != metres.len() {
+        return 0;
+    }
+    let mut filled = 0;
+    loop {
+        let before: Vec<f32> = metres.to_vec();
+        let mut changed = 0;
+        for y in 0..height {
+            for x in 0..width {
+                let i = y * width + x;
+                if valid(before[i]) {
+                    continue;
+                }
+                let neighbours = [
+                    (x > 0).then(|| i - 1),
+                    (x + 1 < width).then(|| i + 1),
+                    (y > 0).then(|| i - width),
+                    (y + 1 < height).then(|| i + width),
+                ];
+                let best = neighbours
+                    .into_iter()
+                    .flatten()
+                    .map(|j| before[j])
+                    .filter(|&z| valid(z))
+                    .fold(f32::NAN, f32::max);
+                if valid(best) {
+                    metres[i] = best;
+                    changed += 1;
+                }
+            }
+        }
+        if changed == 0 {
+            return filled;
+        }
+        filled += changed;
+    }
+}
+
 /// RGB-D mode's `points`: every pixel's world point from sensor depth, centred and scaled.
 fn world_points(
     views: &[View<'_>],
@@ -211,12 +260,13 @@ fn world_points(
             ModelError::Input("an RGB-D model needs a depth image for every view".into())
         })?;
         let camera = resized_camera(&view.camera, width, height);
-        let metres = resize_depth(depth, width, height);
+        let mut metres = resize_depth(depth, width, height);
+        fill_invalid_depth(&mut metres, width, height);
         let mut planar = vec![0.0f32; 3 * plane];
         for y in 0..height {
             for x in 0..width {
                 let d = metres[y * width + x];
-                // Invalid depth becomes the centre (0 after centring), a neutral input.
+                // Only a view without any valid depth is left: the centre (0 after centring).
                 let world = if d.is_finite() && d > 0.0 {
                     let p = camera.unproject(DVec2::new(x as f64, y as f64), f64::from(d));
                     view.world_from_camera.transform_point(p)
@@ -536,6 +586,34 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn invalid_depth_is_filled_from_the_farthest_valid_neighbour_until_none_is_left() {
+        let nan = f32::NAN;
+        // A 1 m object in front of a 3 m wall, with a hole on the edge and one in the wall.
+        let mut depth = vec![
+            1.0, nan, 3.0, 3.0, //
+            1.0, 1.0, nan, 3.0, //
+            nan, nan, nan, 0.0, //
+        ];
+        let filled = fill_invalid_depth(&mut depth, 4, 3);
+        assert_eq!(filled, 6);
+        assert_eq!(
+            depth,
+            [
+                1.0, 3.0, 3.0, 3.0, //
+                1.0, 1.0, 3.0, 3.0, //
+                1.0, 1.0, 3.0, 3.0, //
+            ]
+        );
+        // Nothing to fill from: left as it is.
+        let mut empty = vec![nan, 0.0, f32::INFINITY];
+        assert_eq!(fill_invalid_depth(&mut empty, 3, 1), 0);
+        assert!(empty[0].is_nan() && empty[1] == 0.0);
+        // A clean image is untouched.
+        let mut clean = vec![2.0; 6];
+        assert_eq!(fill_invalid_depth(&mut clean, 3, 2), 0);
     }
 
     #[test]

@@ -34,6 +34,8 @@ pub struct Shared {
     pub vocabulary: Option<Vocabulary>,
     /// Hypotheses per instance message.
     pub hypotheses: usize,
+    /// Windows that built nothing: no view had valid depth.
+    pub windows_skipped: u64,
 }
 
 fn time_of(nanos: i64) -> Time {

@@ -103,6 +103,8 @@ impl Node {
                 frames_rejected: c.rejected,
                 rate_hz: (in_period as f64 / period) as f32,
                 last_stamp: Time::from_nanos(c.last_stamp_nanos),
+                depth_pixels: c.depth.pixels,
+                depth_pixels_invalid: c.depth.invalid(),
             });
         }
         self.period_received = cameras.iter().map(|c| c.frames_received).collect();
@@ -135,13 +137,24 @@ pub(super) fn wall_nanos() -> i64 {
         .map_or(0, |d| d.as_nanos() as i64)
 }
 
+/// The status's reason code for windows that built nothing because no view had valid depth.
+pub const WINDOW_WITHOUT_DEPTH: &str = "window_without_valid_depth";
+
 pub(super) fn publish_status(
     node: &mut Node,
     now: Instant,
     publisher: &dyn Publisher,
     shared: &Mutex<Shared>,
 ) -> NodeStatus {
-    let status = node.status(now);
+    let mut status = node.status(now);
+    if let Ok(s) = shared.lock() {
+        if s.windows_skipped > 0 {
+            status.rejections.push(RejectCount {
+                reason: WINDOW_WITHOUT_DEPTH.to_owned(),
+                count: s.windows_skipped,
+            });
+        }
+    }
     match cdr::encode(&status) {
         Ok(bytes) => {
             if let Err(e) = publisher.publish(&bytes) {

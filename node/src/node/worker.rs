@@ -51,6 +51,13 @@ pub(super) fn start_window_worker(
             let started = Instant::now();
             match models.pass(&frames) {
                 Ok(output) => {
+                    if let Some(reason) = &output.skipped {
+                        tracing::warn!("window skipped: {reason}");
+                        if let Ok(mut s) = shared.lock() {
+                            s.windows_skipped += 1;
+                        }
+                        continue;
+                    }
                     if let Some(e) = &output.semantics_error {
                         tracing::warn!("window without semantics: {e}");
                     }
