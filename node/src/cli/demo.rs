@@ -12,8 +12,9 @@ pub struct DemoArgs {
     /// `two_chairs` scene).
     #[arg(long)]
     scene: Option<String>,
-    /// Replay speed factor of the recorded bag.
-    #[arg(long, default_value_t = 2.0)]
+    /// Replay speed factor of the recorded bag (1: as the camera recorded it; faster drops more
+    /// windows while the worker is busy).
+    #[arg(long, default_value_t = 1.0)]
     rate: f64,
     /// Replace the scene's effects by a preset: `clean`, `realistic` (a consumer depth camera on
     /// a moving robot), `dropout:<p>`.

@@ -54,9 +54,11 @@ enum Command {
 
 fn main() -> Result<()> {
     let cli = Cli::parse();
-    // The demo and eval print summaries: node logs below WARN only with RUST_LOG.
+    // The demo, eval and bench print summaries: node logs below WARN only with RUST_LOG.
     let default_filter = match cli.command {
-        Command::Demo(_) | Command::Eval { .. } => "warn,zenoh=warn,ort=warn",
+        Command::Demo(_) | Command::Eval { .. } | Command::Bench { .. } => {
+            "warn,zenoh=warn,ort=warn"
+        }
         _ => "info,zenoh=warn,ort=warn",
     };
     tracing_subscriber::fmt()

@@ -529,6 +529,50 @@ mod tests {
         assert_eq!(ingest.camera_counters(0).unwrap().synced, 0);
     }
 
+    #[test]
+    fn invalid_depth_is_marked_and_counted_and_a_depth_image_without_any_is_rejected() {
+        let config = Config::default();
+        let mut ingest = ingest_for(&config);
+        ingest.handle(Route::CameraInfo(0), &cdr::encode(&info(4, 2)).unwrap());
+        let t = 1_000_000_000;
+        ingest.handle(
+            Route::Image(0),
+            &cdr::encode(&image(4, 2, "rgb8", 3, t)).unwrap(),
+        );
+        // 16UC1 millimetres: two dropped (0), one beyond 10 m, five at 1.5 m of which the corner
+        // one has no valid neighbour left (isolated).
+        let mut depth = image(4, 2, "16UC1", 2, t);
+        depth.data = [1500u16, 0, 1500, 1500, 0, 1500, 1500, 20000]
+            .iter()
+            .flat_map(|v| v.to_le_bytes())
+            .collect();
+        ingest.handle(Route::Depth(0), &cdr::encode(&depth).unwrap());
+        let frames = ingest.handle(
+            Route::Tf,
+            &cdr::encode(&tf("map", "cam_optical", t, 0.0, ID)).unwrap(),
+        );
+        let metres = &frames[0].depth.as_ref().unwrap().metres;
+        assert_eq!(metres.iter().filter(|z| z.is_nan()).count(), 4);
+        let counted = ingest.camera_counters(0).unwrap().depth;
+        assert_eq!(
+            (
+                counted.pixels,
+                counted.missing,
+                counted.out_of_range,
+                counted.isolated
+            ),
+            (8, 2, 1, 1)
+        );
+        // All zero: rejected with its reason, counted once, nothing synced from it.
+        let mut blind = image(4, 2, "16UC1", 2, 2 * t);
+        blind.data = vec![0; 16];
+        assert!(ingest
+            .handle(Route::Depth(0), &cdr::encode(&blind).unwrap())
+            .is_empty());
+        assert_eq!(ingest.rejections.count(Reject::NoValidDepth), 1);
+        assert_eq!(ingest.camera_counters(0).unwrap().depth.pixels, 8);
+    }
+
     proptest::proptest! {
         #[test]
         fn any_bytes_on_any_route_are_accounted_for_once(bytes in proptest::collection::vec(proptest::prelude::any::<u8>(), 0..256),
