@@ -82,7 +82,10 @@ impl std::fmt::Debug for ReconstructionModel {
     }
 }
 
-/// Bilinear resize of an RGB image to `width × height`, as f32 in [0, 1], channel-planar.
+/// Bilinear resize of an RGB image to `width × height`, as f32 in [0, 1], channel-planar. (A box
+/// filter over each output pixel's footprint, which would average a camera's read noise down, cost
+/// 8 points of recall@0.25 and precision on the clean benchmark: the models were trained on
+/// point-sampled renders and want their sharpness.)
 pub fn resize_rgb_planar(image: &RgbImage, width: usize, height: usize) -> Vec<f32> {
     let (w, h) = (image.width as usize, image.height as usize);
     let mut out = vec![0.0; 3 * width * height];
