@@ -145,15 +145,7 @@ pub fn window_pass(
     frames: &[SyncedFrame],
     grouping: &GroupingParams,
 ) -> Result<WindowOutput, WindowError> {
-    let views: Vec<View<'_>> = frames
-        .iter()
-        .map(|f| View {
-            rgb: &f.rgb,
-            depth: f.depth.as_ref(),
-            camera: f.camera,
-            world_from_camera: f.world_from_camera,
-        })
-        .collect();
+    let views: Vec<View<'_>> = frames.iter().map(View::from).collect();
     let mut prediction = model.predict(&views)?;
     // RGB-D: geometry from the depth camera (the eval's recall at IoU 0.5 doubles against the
     // model's own depth), instances from the model.

@@ -3,14 +3,8 @@
 //! through `train/gf/data.py`) and in the node (`fill_invalid_depth`): bit for bit on a depth image
 //! with random dropout, a large hole, zeros and infinities. Runs the project's test venv.
 
-use std::path::{Path, PathBuf};
-use std::process::Command;
-
 use groupforward::model::reconstruction::fill_invalid_depth;
-
-fn root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
-}
+use groupforward_tests::{root, venv_python};
 
 /// 40×30 depth: a slanted wall at 2–4 m with a 1 m box in front, 30% of pixels dropped (NaN, 0
 /// or ∞), and a 10×8 hole across the box's edge. A fixed LCG keeps it the same everywhere.
@@ -72,19 +66,7 @@ fn training_and_the_node_fill_invalid_depth_alike() {
         gf = root().join("train/gf").display().to_string(),
         file = file.display().to_string(),
     );
-    let python = root().join(".venv/bin/python");
-    let output = Command::new(&python)
-        .arg("-c")
-        .arg(script)
-        .output()
-        .unwrap_or_else(|e| panic!("{}: {e} (run `make setup`)", python.display()));
-    assert!(
-        output.status.success(),
-        "{}",
-        String::from_utf8_lossy(&output.stderr)
-    );
-    let python: Vec<f32> = output
-        .stdout
+    let python: Vec<f32> = venv_python(&script)
         .chunks_exact(4)
         .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
         .collect();

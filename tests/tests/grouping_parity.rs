@@ -5,14 +5,9 @@
 //! Runs the project's test venv (`make setup`), whose `hdbscan` package is the reference.
 
 use std::collections::HashMap;
-use std::path::{Path, PathBuf};
-use std::process::Command;
 
 use groupforward::group::{group, GroupingParams};
-
-fn root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
-}
+use groupforward_tests::{root, venv_python};
 
 /// Unit 8-d embeddings: seven tight clusters of different sizes on the sphere, two of them 0.29
 /// apart (one instance split in two density modes: the merge step must join them), and scattered
@@ -81,18 +76,8 @@ fn the_python_grouping_in_train_gives_the_node_s_labels() {
         train = root().join("train").display().to_string(),
         file = file.display().to_string(),
     );
-    let python = root().join(".venv/bin/python");
-    let output = Command::new(&python)
-        .arg("-c")
-        .arg(script)
-        .output()
-        .unwrap_or_else(|e| panic!("{}: {e} (run `make setup`)", python.display()));
-    assert!(
-        output.status.success(),
-        "{}",
-        String::from_utf8_lossy(&output.stderr)
-    );
-    let python_labels: Vec<i64> = serde_json::from_slice(&output.stdout).unwrap();
+    let stdout = venv_python(&script);
+    let python_labels: Vec<i64> = serde_json::from_slice(&stdout).unwrap();
     assert_eq!(python_labels.len(), rust.labels.len());
     // One bijection between the two label sets, with noise (-1) mapped to noise.
     let mut forward: HashMap<i32, i64> = HashMap::new();

@@ -329,15 +329,7 @@ fn window_ari(
     truth: &[Vec<u16>],
     channels: usize,
 ) -> f64 {
-    let views: Vec<View> = frames
-        .iter()
-        .map(|f| View {
-            rgb: &f.rgb,
-            depth: f.depth.as_ref(),
-            camera: f.camera,
-            world_from_camera: f.world_from_camera,
-        })
-        .collect();
+    let views: Vec<View> = frames.iter().map(View::from).collect();
     let prediction = model.predict(&views).unwrap();
     let mut gaussians = model.to_gaussians(&prediction, &views).unwrap();
     let dims = gaussians.embedding_dim;
@@ -423,15 +415,7 @@ fn window_labels(
     model: &mut ReconstructionModel,
     frames: &[SyncedFrame],
 ) -> (Vec<Option<i32>>, usize) {
-    let views: Vec<View> = frames
-        .iter()
-        .map(|f| View {
-            rgb: &f.rgb,
-            depth: f.depth.as_ref(),
-            camera: f.camera,
-            world_from_camera: f.world_from_camera,
-        })
-        .collect();
+    let views: Vec<View> = frames.iter().map(View::from).collect();
     let mut prediction = model.predict(&views).unwrap();
     use_sensor_depth(&mut prediction, &views);
     let gaussians = model.to_gaussians(&prediction, &views).unwrap();
@@ -465,15 +449,7 @@ fn pixels_without_valid_depth_never_become_gaussians_and_a_window_without_any_bu
     .unwrap();
     // 30% random dropout (NaN, as ingest marks every invalid pixel).
     let frames = window_frames(&with_effects(0, Preset::Dropout(0.3)));
-    let views: Vec<View> = frames
-        .iter()
-        .map(|f| View {
-            rgb: &f.rgb,
-            depth: f.depth.as_ref(),
-            camera: f.camera,
-            world_from_camera: f.world_from_camera,
-        })
-        .collect();
+    let views: Vec<View> = frames.iter().map(View::from).collect();
     let mut prediction = model.predict(&views).unwrap();
     use_sensor_depth(&mut prediction, &views);
     let (w, h) = (prediction.width, prediction.height);

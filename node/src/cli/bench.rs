@@ -180,25 +180,7 @@ fn percent_chart(
         .y_desc("%")
         .draw()
         .map_err(|e| anyhow::anyhow!("{e}"))?;
-    for (i, (name, data)) in series.iter().enumerate() {
-        let color = Palette99::pick(i).to_rgba();
-        chart
-            .draw_series(LineSeries::new(data.clone(), color.stroke_width(2)))
-            .map_err(|e| anyhow::anyhow!("{e}"))?
-            .label(*name)
-            .legend(move |(x, y)| {
-                PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(2))
-            });
-        chart
-            .draw_series(data.iter().map(|p| Circle::new(*p, 3, color.filled())))
-            .map_err(|e| anyhow::anyhow!("{e}"))?;
-    }
-    chart
-        .configure_series_labels()
-        .background_style(WHITE.mix(0.8))
-        .border_style(BLACK)
-        .draw()
-        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    draw_lines(&mut chart, series)?;
     root.present().map_err(|e| anyhow::anyhow!("{e}"))?;
     Ok(())
 }
@@ -362,13 +344,39 @@ fn line_chart(
         .y_desc(y_label)
         .draw()
         .map_err(|e| anyhow::anyhow!("{e}"))?;
+    // A log axis has no place for zero or below.
+    let positive: Vec<(&str, Vec<(f64, f64)>)> = series
+        .iter()
+        .map(|(name, data)| {
+            let kept = data
+                .iter()
+                .copied()
+                .filter(|(_, y)| y.is_finite() && *y > 0.0)
+                .collect();
+            (*name, kept)
+        })
+        .collect();
+    draw_lines(&mut chart, &positive)?;
+    root.present().map_err(|e| anyhow::anyhow!("{e}"))?;
+    Ok(())
+}
+
+/// Each series as a line with its points marked, and the legend.
+fn draw_lines<'a, X, Y>(
+    chart: &mut plotters::prelude::ChartContext<
+        'a,
+        plotters::prelude::SVGBackend<'a>,
+        plotters::prelude::Cartesian2d<X, Y>,
+    >,
+    series: &[(&str, Vec<(f64, f64)>)],
+) -> Result<()>
+where
+    X: plotters::coord::ranged1d::Ranged<ValueType = f64>,
+    Y: plotters::coord::ranged1d::Ranged<ValueType = f64>,
+{
+    use plotters::prelude::*;
     for (i, (name, data)) in series.iter().enumerate() {
         let color = Palette99::pick(i).to_rgba();
-        let data: Vec<(f64, f64)> = data
-            .iter()
-            .copied()
-            .filter(|(_, y)| y.is_finite() && *y > 0.0)
-            .collect();
         chart
             .draw_series(LineSeries::new(data.clone(), color.stroke_width(2)))
             .map_err(|e| anyhow::anyhow!("{e}"))?
@@ -386,7 +394,6 @@ fn line_chart(
         .border_style(BLACK)
         .draw()
         .map_err(|e| anyhow::anyhow!("{e}"))?;
-    root.present().map_err(|e| anyhow::anyhow!("{e}"))?;
     Ok(())
 }
 

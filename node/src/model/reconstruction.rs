@@ -15,7 +15,7 @@ use glam::{DMat3, DVec2, DVec3};
 
 use super::manifest::{InputMode, Manifest, ModelKind, Normalization};
 use super::{open_session, ModelError, Result, SessionOptions};
-use crate::frame::{DepthImage, RgbImage};
+use crate::frame::{DepthImage, RgbImage, SyncedFrame};
 use crate::recon::camera::Camera;
 use crate::recon::gaussians::{lift, Gaussians, PixelAligned};
 use crate::recon::Rigid;
@@ -30,6 +30,17 @@ pub struct View<'a> {
     pub depth: Option<&'a DepthImage>,
     pub camera: Camera,
     pub world_from_camera: Rigid,
+}
+
+impl<'a> From<&'a SyncedFrame> for View<'a> {
+    fn from(frame: &'a SyncedFrame) -> Self {
+        Self {
+            rgb: &frame.rgb,
+            depth: frame.depth.as_ref(),
+            camera: frame.camera,
+            world_from_camera: frame.world_from_camera,
+        }
+    }
 }
 
 /// Input tensors at the model resolution: `images` [1,V,3,H,W] and what the model's mode takes
@@ -213,9 +224,9 @@ pub fn fill_invalid_depth(metres: &mut [f32], width: usize, height: usize) -> us
     if width * height != metres.len() {
         return 0;
     }
-    let mut filled = 0;
+    let (mut filled, mut before) = (0, metres.to_vec());
     loop {
-        let before: Vec<f32> = metres.to_vec();
+        before.copy_from_slice(metres);
         let mut changed = 0;
         for y in 0..height {
             for x in 0..width {
