@@ -35,6 +35,7 @@ pub mod ingest;
 pub mod model;
 pub mod node;
 pub mod recon;
+pub mod refer;
 pub mod replay;
 pub mod transport;
 pub mod window;

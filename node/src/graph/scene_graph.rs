@@ -14,6 +14,17 @@ use crate::recon::raster::{render, RasterSettings};
 impl SceneMap {
     /// The scene graph over the `views` newest keyframes.
     pub fn graph(&self, views: usize, max_edge_distance: f32) -> Result<SceneGraph, GraphError> {
+        self.graph_with_depths(views, max_edge_distance)
+            .map(|(graph, _)| graph)
+    }
+
+    /// The scene graph and, per keyframe of the graph (newest first), the depth of the whole map
+    /// rendered there: the occlusion reference that masks are cut against.
+    pub fn graph_with_depths(
+        &self,
+        views: usize,
+        max_edge_distance: f32,
+    ) -> Result<(SceneGraph, Vec<Vec<f32>>), GraphError> {
         let keyframes: Vec<&Keyframe> = self.keyframes.iter().rev().take(views).collect();
         // One depth render of the whole map per keyframe: the occlusion reference.
         let mut all = Gaussians::with_dims(0, 0);
@@ -90,11 +101,12 @@ impl SceneMap {
                 });
             }
         }
-        Ok(SceneGraph {
+        let graph = SceneGraph {
             keyframe_stamps: keyframes.iter().map(|k| k.stamp_nanos).collect(),
             nodes,
             edges,
-        })
+        };
+        Ok((graph, depths))
     }
 }
 

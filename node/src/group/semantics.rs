@@ -215,9 +215,9 @@ impl Vocabulary {
             .is_some_and(|(phrase, _)| phrase == OTHER_PHRASE)
     }
 
-    /// The `count` best phrases for `prototype`, best first, with their softmax scores. Empty when
-    /// the prototype is empty or zero, or the vocabulary is.
-    pub fn hypotheses(&self, prototype: &[f32], count: usize) -> Vec<(String, f32)> {
+    /// p(phrase | prototype) for every phrase of the vocabulary, in its order: a softmax of
+    /// cosine / τ. Empty when the prototype is empty or zero, or the vocabulary is.
+    pub fn probabilities(&self, prototype: &[f32]) -> Vec<f32> {
         let norm = prototype.iter().map(|v| v * v).sum::<f32>().sqrt();
         if self.phrases.is_empty() || !(norm.is_finite() && norm > 1e-12) {
             return Vec::new();
@@ -227,18 +227,16 @@ impl Vocabulary {
             .iter()
             .map(|e| crate::model::text::cosine(prototype, e))
             .collect();
-        // Softmax with the maximum subtracted: finite for any τ > 0, however small.
-        let temperature = self.temperature.max(1e-6);
-        let top = cosines.iter().copied().fold(f32::NEG_INFINITY, f32::max);
-        let weights: Vec<f32> = cosines
-            .iter()
-            .map(|c| ((c - top) / temperature).exp())
-            .collect();
-        let total: f32 = weights.iter().sum();
-        let mut ranked: Vec<(usize, f32)> = weights
-            .iter()
+        softmax(&cosines, self.temperature)
+    }
+
+    /// The `count` best phrases for `prototype`, best first, with their softmax scores. Empty when
+    /// the prototype is empty or zero, or the vocabulary is.
+    pub fn hypotheses(&self, prototype: &[f32], count: usize) -> Vec<(String, f32)> {
+        let mut ranked: Vec<(usize, f32)> = self
+            .probabilities(prototype)
+            .into_iter()
             .enumerate()
-            .map(|(i, w)| (i, w / total))
             .collect();
         ranked.sort_by(|a, b| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0)));
         ranked
@@ -247,4 +245,17 @@ impl Vocabulary {
             .map(|(i, score)| (self.phrases[i].clone(), score))
             .collect()
     }
+}
+
+/// Softmax of `values / temperature` with the maximum subtracted: finite for any τ > 0, however
+/// small; empty in, empty out.
+pub fn softmax(values: &[f32], temperature: f32) -> Vec<f32> {
+    let temperature = temperature.max(1e-6);
+    let top = values.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+    let weights: Vec<f32> = values
+        .iter()
+        .map(|v| ((v - top) / temperature).exp())
+        .collect();
+    let total: f32 = weights.iter().sum();
+    weights.iter().map(|w| w / total).collect()
 }

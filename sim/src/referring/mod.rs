@@ -12,9 +12,10 @@ mod relations;
 mod templates;
 
 pub use relations::{
-    above_margin, between_margin, color_name, front_margin, left_margin, on_margin, plural,
-    Expression, Geometry, Relation, ViewPose, BETWEEN_CLEARANCE_M, CLOSEST_GAP_M, DEPTH_GAP_M,
-    DIRECTION_MARGIN_DEG, SIZE_RATIO, SUPPORT_CONTACT_M, VERTICAL_SEPARATION_M,
+    above_margin, bearing, between_margin, color_name, front_margin, left_margin, on_margin,
+    plural, Expression, Geometry, Relation, ViewPose, BETWEEN_CLEARANCE_M, CLOSEST_GAP_M,
+    COLOR_PALETTE, DEPTH_GAP_M, DIRECTION_MARGIN_DEG, SIZE_RATIO, SUPPORT_CONTACT_M,
+    VERTICAL_SEPARATION_M,
 };
 
 use crate::render::Scene;

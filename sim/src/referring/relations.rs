@@ -173,7 +173,7 @@ pub fn above_margin(t: &Geometry, a: &Geometry) -> f64 {
 }
 
 /// Horizontal bearing (degrees, positive to the right) and depth of a point in a view.
-pub(super) fn bearing(view: &ViewPose, p: DVec3) -> (f64, f64) {
+pub fn bearing(view: &ViewPose, p: DVec3) -> (f64, f64) {
     let c = view.in_camera(p);
     (c.x.atan2(c.z).to_degrees(), c.z)
 }
@@ -209,28 +209,31 @@ pub fn between_margin(t: &Geometry, a: &Geometry, b: &Geometry) -> f64 {
     along.min(across)
 }
 
+/// Colour names and the RGB (0-1) they stand for: what colour words mean to the generator and the
+/// node's reasoner.
+pub const COLOR_PALETTE: &[(&str, [f32; 3])] = &[
+    ("red", [0.8, 0.15, 0.15]),
+    ("orange", [0.9, 0.5, 0.15]),
+    ("yellow", [0.9, 0.85, 0.3]),
+    ("green", [0.2, 0.6, 0.25]),
+    ("blue", [0.2, 0.3, 0.75]),
+    ("purple", [0.5, 0.25, 0.6]),
+    ("brown", [0.5, 0.32, 0.18]),
+    ("black", [0.08, 0.08, 0.1]),
+    ("white", [0.93, 0.93, 0.93]),
+    ("grey", [0.5, 0.5, 0.5]),
+    ("beige", [0.85, 0.78, 0.6]),
+];
+
 /// The nearest colour name of an RGB triple.
 pub fn color_name(color: [f32; 3]) -> &'static str {
-    const PALETTE: &[(&str, [f32; 3])] = &[
-        ("red", [0.8, 0.15, 0.15]),
-        ("orange", [0.9, 0.5, 0.15]),
-        ("yellow", [0.9, 0.85, 0.3]),
-        ("green", [0.2, 0.6, 0.25]),
-        ("blue", [0.2, 0.3, 0.75]),
-        ("purple", [0.5, 0.25, 0.6]),
-        ("brown", [0.5, 0.32, 0.18]),
-        ("black", [0.08, 0.08, 0.1]),
-        ("white", [0.93, 0.93, 0.93]),
-        ("grey", [0.5, 0.5, 0.5]),
-        ("beige", [0.85, 0.78, 0.6]),
-    ];
     let distance = |c: &[f32; 3]| {
         c.iter()
             .zip(color)
             .map(|(a, b)| (a - b) * (a - b))
             .sum::<f32>()
     };
-    PALETTE
+    COLOR_PALETTE
         .iter()
         .min_by(|a, b| distance(&a.1).total_cmp(&distance(&b.1)))
         .map_or("grey", |p| p.0)

@@ -1,0 +1,122 @@
+//! Semantic scores: how well an instance fits a concept phrase. The phrase is embedded by the
+//! text encoder and spread over the vocabulary by text similarity (a softmax of cosine / τ), and
+//! an instance's score is that spread weighted by the instance's own distribution over the same
+//! phrases: Σ_j p(phrase_j | phrase) p(phrase_j | instance). Synonyms ("garbage can") and
+//! function phrases ("wash hands") land on the phrases they mean with no table from words to
+//! classes; the structure phrase `other` never takes weight (a query never asks for walls).
+
+use crate::group::semantics::{softmax, OTHER_PHRASE};
+use crate::model::text::cosine;
+
+use super::scene::{ReferNode, ReferScene};
+
+/// A concept phrase spread over a scene's vocabulary.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Concept {
+    pub phrase: String,
+    /// Over the scene's phrases.
+    pub weights: Vec<f32>,
+}
+
+impl Concept {
+    /// `embedding`: the text encoder's embedding of `phrase`.
+    pub fn new(phrase: &str, embedding: &[f32], scene: &ReferScene, temperature: f32) -> Self {
+        let cosines: Vec<f32> = scene
+            .phrases
+            .iter()
+            .zip(&scene.embeddings)
+            .map(|(p, e)| {
+                if p == OTHER_PHRASE {
+                    f32::NEG_INFINITY
+                } else {
+                    cosine(embedding, e)
+                }
+            })
+            .collect();
+        let finite = cosines.iter().any(|c| c.is_finite());
+        Self {
+            phrase: phrase.to_owned(),
+            weights: if finite {
+                softmax(&cosines, temperature)
+            } else {
+                vec![0.0; cosines.len()]
+            },
+        }
+    }
+
+    /// How well `node` fits this concept, in [0, 1] (0 for an instance without semantics).
+    pub fn score(&self, node: &ReferNode) -> f32 {
+        node.names
+            .iter()
+            .zip(&self.weights)
+            .map(|(p, w)| p * w)
+            .sum::<f32>()
+            .clamp(0.0, 1.0)
+    }
+
+    /// The phrase of the vocabulary this concept leans on most, with its weight.
+    pub fn nearest_phrase<'a>(&self, scene: &'a ReferScene) -> Option<(&'a str, f32)> {
+        self.weights
+            .iter()
+            .enumerate()
+            .max_by(|a, b| a.1.total_cmp(b.1))
+            .map(|(i, w)| (scene.phrases[i].as_str(), *w))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn scene() -> ReferScene {
+        ReferScene {
+            phrases: vec!["chair".into(), "sofa".into(), "other".into()],
+            embeddings: vec![
+                vec![1.0, 0.0, 0.0],
+                vec![0.0, 1.0, 0.0],
+                vec![0.0, 0.0, 1.0],
+            ],
+            ..ReferScene::default()
+        }
+    }
+
+    #[test]
+    fn a_concept_between_two_phrases_leans_on_the_nearer_and_never_on_other() {
+        let scene = scene();
+        let couch = Concept::new("couch", &[0.3, 0.9, 0.9], &scene, 0.05);
+        assert!(couch.weights[1] > 0.99, "{:?}", couch.weights);
+        assert_eq!(couch.weights[2], 0.0);
+        assert_eq!(couch.nearest_phrase(&scene).map(|p| p.0), Some("sofa"));
+    }
+
+    #[test]
+    fn zero_embeddings_and_unnamed_instances_score_zero_not_nan() {
+        let scene = scene();
+        let nothing = Concept::new("", &[0.0, 0.0, 0.0], &scene, 0.05);
+        assert!(nothing.weights.iter().all(|w| w.is_finite()));
+        let unnamed = ReferNode {
+            id: "inst_000001".into(),
+            names: Vec::new(),
+            label: String::new(),
+            bbox: crate::recon::boxes::OrientedBox::from_bounds(
+                glam::DVec3::ZERO,
+                glam::DVec3::ONE,
+            ),
+            lo: glam::DVec3::ZERO,
+            hi: glam::DVec3::ONE,
+            color: [0.5; 3],
+            visibility: 0.0,
+            confidence: 0.5,
+            gaussians: 0,
+        };
+        assert_eq!(nothing.score(&unnamed), 0.0);
+        // A vocabulary of only `other`: no weight anywhere, finite.
+        let only_other = ReferScene {
+            phrases: vec!["other".into()],
+            embeddings: vec![vec![1.0]],
+            ..ReferScene::default()
+        };
+        let c = Concept::new("wall", &[1.0], &only_other, 1e-9);
+        assert_eq!(c.weights, [0.0]);
+    }
+}

@@ -1,0 +1,220 @@
+//! The built-in graph reasoner (default, deterministic): among the retrieved candidates only, the
+//! instances that fit the target concept are ranked by what the expression asks (the relation's
+//! Sr3D margin to the best anchors, the superlative's key, the colour's distance, else the
+//! semantic score) and as many as the expression's cardinality are chosen.
+
+use groupforward_sim::referring::{Geometry, ViewPose};
+
+use super::parse::{Count, Query, Relation};
+use super::retrieve::{
+    color_distance, color_rgb, geometry, relation_margin, superlative_key, Retrieval, Scored,
+};
+use super::scene::ReferScene;
+
+/// Candidates below this semantic score never fit a concept, however weak the field.
+pub const MIN_SEMANTIC: f32 = 0.05;
+
+/// One chosen instance.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Choice {
+    /// Index into the scene's nodes.
+    pub index: usize,
+    pub confidence: f32,
+}
+
+/// A reasoner's decision.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Decision {
+    pub chosen: Vec<Choice>,
+    /// Why, in words (candidate keys and the rule applied).
+    pub trace: String,
+    /// Set when fewer instances than asked for fit ("both chairs" with one chair in the map).
+    pub shortfall: Option<String>,
+}
+
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum ReasonError {
+    #[error("nothing in the map fits {0:?}")]
+    NoTarget(String),
+    #[error("no {0:?} in the map to relate to")]
+    NoAnchor(String),
+    #[error("{0} needs a viewpoint and the map has no keyframe yet")]
+    NoView(String),
+}
+
+/// The candidates that fit the target concept: at least half the best semantic score.
+pub fn fitting(candidates: &[Scored]) -> Vec<Scored> {
+    let best = candidates.iter().map(|c| c.semantic).fold(0.0, f32::max);
+    candidates
+        .iter()
+        .filter(|c| c.semantic >= MIN_SEMANTIC && c.semantic >= 0.5 * best)
+        .copied()
+        .collect()
+}
+
+/// Decide among `retrieval`'s candidates.
+pub fn reason(
+    scene: &ReferScene,
+    query: &Query,
+    retrieval: &Retrieval,
+    view: Option<&ViewPose>,
+    max_targets: usize,
+) -> Result<Decision, ReasonError> {
+    let fit = fitting(&retrieval.candidates);
+    if fit.is_empty() {
+        return Err(ReasonError::NoTarget(query.target.clone()));
+    }
+    if query.view_dependent() && view.is_none() {
+        return Err(ReasonError::NoView(query.text.clone()));
+    }
+    let geometries: Vec<Geometry> = scene
+        .nodes
+        .iter()
+        .enumerate()
+        .map(|(i, n)| geometry(n, i))
+        .collect();
+    let mut trace = format!(
+        "{} of {} candidates fit {:?}",
+        fit.len(),
+        retrieval.candidates.len(),
+        query.target
+    );
+    // (candidate, key, holds): larger keys win; `holds` says the relation is satisfied outright.
+    let mut keyed: Vec<(Scored, f64, bool)> = Vec::new();
+    if let Some(relation) = query.relation {
+        let anchors = &retrieval.anchors;
+        let first = anchors.first().filter(|l| !l.is_empty());
+        let Some(first) = first else {
+            return Err(ReasonError::NoAnchor(
+                query.anchors.first().cloned().unwrap_or_default(),
+            ));
+        };
+        for c in &fit {
+            let t = &geometries[c.index];
+            let margin = match relation {
+                Relation::Between => {
+                    let pair = between_pair(anchors, c.index);
+                    match pair {
+                        Some((a, b)) => {
+                            relation_margin(relation, t, &geometries[a], Some(&geometries[b]), view)
+                        }
+                        None => return Err(ReasonError::NoAnchor(query.anchors.join(" and "))),
+                    }
+                }
+                // Support relations hold with any instance of the anchor concept.
+                Relation::On | Relation::Supporting | Relation::Above | Relation::Below => first
+                    .iter()
+                    .filter(|a| a.0 != c.index)
+                    .map(|a| relation_margin(relation, t, &geometries[a.0], None, view))
+                    .fold(f64::NEG_INFINITY, f64::max),
+                // Others are about the anchor: the best fit of its concept.
+                _ => match first.iter().find(|a| a.0 != c.index) {
+                    Some(a) => relation_margin(relation, t, &geometries[a.0], None, view),
+                    None => f64::NEG_INFINITY,
+                },
+            };
+            let holds =
+                !matches!(relation, Relation::Closest | Relation::Farthest) && margin >= 0.0;
+            keyed.push((*c, margin, holds));
+        }
+        let anchor_ids: Vec<&str> = first
+            .iter()
+            .take(3)
+            .map(|a| scene.nodes[a.0].id.as_str())
+            .collect();
+        trace += &format!(
+            "; {relation:?} to {:?} (anchors {})",
+            query.anchors,
+            anchor_ids.join(", ")
+        );
+    } else if let Some(s) = query.superlative {
+        for c in &fit {
+            keyed.push((*c, superlative_key(s, &geometries[c.index], view), false));
+        }
+        trace += &format!("; {s:?}");
+    } else if let Some(named) = query.color.as_deref().and_then(color_rgb) {
+        for c in &fit {
+            let node = &scene.nodes[c.index];
+            keyed.push((*c, -color_distance(node.color, named), false));
+        }
+        trace += &format!("; colour {:?}", query.color.as_deref().unwrap_or(""));
+    } else {
+        for c in &fit {
+            keyed.push((*c, f64::from(c.semantic), false));
+        }
+    }
+    keyed.sort_by(|a, b| b.1.total_cmp(&a.1).then(a.0.index.cmp(&b.0.index)));
+    let keys: Vec<String> = keyed
+        .iter()
+        .map(|(c, k, _)| format!("{}={k:.2}", scene.nodes[c.index].id))
+        .collect();
+    trace += &format!("; keys {}", keys.join(" "));
+    let wanted = match query.count {
+        Count::One => 1,
+        Count::Exactly(n) => n,
+        Count::All => {
+            let holding = keyed.iter().filter(|k| k.2).count();
+            if query.relation.is_some() && holding > 0 {
+                holding
+            } else if query.relation.is_some() {
+                1
+            } else {
+                keyed.len()
+            }
+        }
+    };
+    let wanted = if max_targets > 0 {
+        wanted.min(max_targets)
+    } else {
+        wanted
+    };
+    let shortfall = (keyed.len() < wanted).then(|| {
+        format!(
+            "asked for {wanted}, {} instance(s) fit {:?}",
+            keyed.len(),
+            query.target
+        )
+    });
+    // Confidence: the candidate's score, discounted when the runner-up's key is close.
+    let chosen: Vec<Choice> = keyed
+        .iter()
+        .take(wanted)
+        .enumerate()
+        .map(|(rank, (c, key, _))| {
+            let next = keyed.get(wanted.max(rank + 1)).map(|n| n.1);
+            let clarity = next.map_or(1.0, |n| {
+                let gap = (key - n) as f32;
+                1.0 / (1.0 + (-gap / 0.1).exp())
+            });
+            Choice {
+                index: c.index,
+                confidence: (c.score.max(c.semantic) * clarity).clamp(0.0, 1.0),
+            }
+        })
+        .collect();
+    Ok(Decision {
+        chosen,
+        trace,
+        shortfall,
+    })
+}
+
+/// The two anchors of "between" for candidate `t`: the best of each anchor concept, or the two
+/// best of one concept ("between the two chairs").
+fn between_pair(anchors: &[super::retrieve::AnchorList], t: usize) -> Option<(usize, usize)> {
+    let first: Vec<usize> = anchors
+        .first()?
+        .iter()
+        .map(|a| a.0)
+        .filter(|&a| a != t)
+        .collect();
+    let second: Vec<usize> = anchors
+        .get(1)?
+        .iter()
+        .map(|a| a.0)
+        .filter(|&a| a != t)
+        .collect();
+    let a = *first.first()?;
+    let b = *second.iter().find(|&&b| b != a)?;
+    Some((a, b))
+}

@@ -1,0 +1,151 @@
+//! What a query reads: a snapshot of the map taken after each fused window, so queries never hold
+//! the map's lock while they parse, embed and reason. Per object instance (structure excluded):
+//! its names as a distribution over the vocabulary, its box, mean colour and visibility ν in the
+//! newest keyframes; per keyframe, its pose and the map's rendered depth (the occlusion reference
+//! masks are cut against).
+
+use glam::DVec3;
+
+use crate::frame::Keyframe;
+use crate::graph::{GraphError, SceneMap};
+use crate::group::semantics::{Vocabulary, OTHER_PHRASE};
+use crate::recon::boxes::OrientedBox;
+
+/// Keyframes a snapshot keeps (newest first): what visibility and masks are computed in.
+pub const SNAPSHOT_VIEWS: usize = 4;
+
+/// One object instance as a query sees it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ReferNode {
+    pub id: String,
+    /// p(phrase | instance) over the vocabulary's phrases, in the vocabulary's order (empty: the
+    /// instance has no semantics).
+    pub names: Vec<f32>,
+    /// Its best name ("" without semantics).
+    pub label: String,
+    pub bbox: OrientedBox,
+    /// Axis-aligned bounds of `bbox`.
+    pub lo: DVec3,
+    pub hi: DVec3,
+    /// Mean colour of its Gaussians (RGB, 0-1).
+    pub color: [f32; 3],
+    /// ν: the largest fraction of its Gaussians visible (in the image, unoccluded) in any kept
+    /// keyframe.
+    pub visibility: f32,
+    pub confidence: f32,
+    pub gaussians: usize,
+}
+
+impl ReferNode {
+    pub fn center(&self) -> DVec3 {
+        self.bbox.centre
+    }
+}
+
+/// A snapshot of the map for queries.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ReferScene {
+    pub nodes: Vec<ReferNode>,
+    /// The vocabulary's phrases and text embeddings (`names` is over these).
+    pub phrases: Vec<String>,
+    pub embeddings: Vec<Vec<f32>>,
+    /// Newest first, with the map's depth rendered in each.
+    pub keyframes: Vec<Keyframe>,
+    pub depths: Vec<Vec<f32>>,
+}
+
+impl ReferScene {
+    /// Snapshot `map`, naming instances with `vocabulary` (none: instances are unnamed and no
+    /// concept can be matched).
+    pub fn build(map: &SceneMap, vocabulary: Option<&Vocabulary>) -> Result<Self, GraphError> {
+        let (graph, depths) = map.graph_with_depths(SNAPSHOT_VIEWS, 0.0)?;
+        let mut nodes = Vec::new();
+        for (instance, node) in map.instances.iter().zip(&graph.nodes) {
+            let names = vocabulary
+                .map(|v| v.probabilities(&instance.prototype))
+                .unwrap_or_default();
+            let best = names
+                .iter()
+                .enumerate()
+                .max_by(|a, b| a.1.total_cmp(b.1))
+                .map(|(i, _)| i);
+            let label = match (vocabulary, best) {
+                (Some(v), Some(i)) => v.phrases[i].clone(),
+                _ => String::new(),
+            };
+            if label == OTHER_PHRASE {
+                continue;
+            }
+            let bbox = instance.oriented_box();
+            let (lo, hi) = box_bounds(&bbox);
+            let n = instance.gaussians.len().max(1) as f32;
+            let color = instance
+                .gaussians
+                .colors
+                .iter()
+                .fold(glam::Vec3::ZERO, |sum, c| sum + *c)
+                / n;
+            nodes.push(ReferNode {
+                id: instance.id.clone(),
+                names,
+                label,
+                bbox,
+                lo,
+                hi,
+                color: color.clamp(glam::Vec3::ZERO, glam::Vec3::ONE).to_array(),
+                visibility: node.views.iter().map(|v| v.visibility).fold(0.0, f32::max),
+                confidence: instance.confidence,
+                gaussians: instance.gaussians.len(),
+            });
+        }
+        Ok(Self {
+            nodes,
+            phrases: vocabulary.map(|v| v.phrases.clone()).unwrap_or_default(),
+            embeddings: vocabulary.map(|v| v.embeddings.clone()).unwrap_or_default(),
+            keyframes: map
+                .keyframes
+                .iter()
+                .rev()
+                .take(SNAPSHOT_VIEWS)
+                .cloned()
+                .collect(),
+            depths,
+        })
+    }
+
+    pub fn node(&self, id: &str) -> Option<&ReferNode> {
+        self.nodes.iter().find(|n| n.id == id)
+    }
+}
+
+/// Axis-aligned bounds of a gravity-aligned box turned by its yaw.
+pub fn box_bounds(b: &OrientedBox) -> (DVec3, DVec3) {
+    let (c, s) = (b.yaw.cos().abs(), b.yaw.sin().abs());
+    let half = DVec3::new(
+        (c * b.size.x + s * b.size.y) / 2.0,
+        (s * b.size.x + c * b.size.y) / 2.0,
+        b.size.z / 2.0,
+    );
+    (b.centre - half, b.centre + half)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn bounds_of_a_turned_box_contain_its_corners() {
+        let b = OrientedBox {
+            centre: DVec3::new(1.0, 2.0, 0.5),
+            size: DVec3::new(2.0, 1.0, 1.0),
+            yaw: std::f64::consts::FRAC_PI_2,
+        };
+        let (lo, hi) = box_bounds(&b);
+        assert!((lo - DVec3::new(0.5, 1.0, 0.0)).length() < 1e-9, "{lo}");
+        assert!((hi - DVec3::new(1.5, 3.0, 1.0)).length() < 1e-9, "{hi}");
+        let degenerate = OrientedBox::from_bounds(DVec3::ONE, DVec3::ONE);
+        let (lo, hi) = box_bounds(&degenerate);
+        assert_eq!(lo, hi);
+        assert!(lo.is_finite());
+    }
+}
