@@ -5,6 +5,7 @@
 //! semantics; transport: zenoh); this module only assembles them, adds the node's own sections
 //! (name, status) and checks what spans sections.
 
+use crate::refer::ReferSection;
 use std::path::Path;
 
 use serde::{Deserialize, Serialize};
@@ -51,6 +52,7 @@ pub struct Config {
     pub window: WindowSection,
     pub map: MapSection,
     pub semantics: SemanticsSection,
+    pub refer: ReferSection,
 }
 
 impl Default for Config {
@@ -66,6 +68,7 @@ impl Default for Config {
             window: WindowSection::default(),
             map: MapSection::default(),
             semantics: SemanticsSection::default(),
+            refer: ReferSection::default(),
         }
     }
 }

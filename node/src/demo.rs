@@ -13,7 +13,7 @@ use groupforward_msgs::geometry_msgs::Quaternion;
 use groupforward_msgs::gf_msgs::{ListInstancesRequest, ListInstancesResponse, NodeStatus};
 use groupforward_msgs::rmw_zenoh::{self, Attachment, Qos};
 use groupforward_msgs::sensor_msgs::Image;
-use groupforward_msgs::services::ListInstances;
+use groupforward_msgs::services::{ListInstances, Refer};
 use groupforward_msgs::tf2_msgs::TFMessage;
 use groupforward_msgs::{cdr, RosMessage, RosService};
 use groupforward_sim::record::{record_to_memory, RecordOptions, RecordSummary};
@@ -108,6 +108,17 @@ pub fn match_vocabulary(queries: &[&str]) -> std::result::Result<Vec<VocabularyM
     Ok(matches)
 }
 
+/// A referring expression generated from ground truth, the service's answer, and the objects
+/// the answered instances' boxes name.
+#[derive(Debug, Clone)]
+pub struct DemoAnswer {
+    pub expression: Expression,
+    pub response: groupforward_msgs::gf_msgs::ReferResponse,
+    pub answered: Vec<u16>,
+    /// Round trip through zenoh.
+    pub millis: f64,
+}
+
 /// One ground-truth object of the scene: instance id, class, position of its base.
 pub type GroundTruthObject = (u16, String, [f64; 3]);
 
@@ -123,8 +134,9 @@ pub struct DemoReport {
     /// What `list_instances` answered at the end.
     pub instances: Vec<groupforward_msgs::gf_msgs::Instance>,
     pub objects: Vec<GroundTruthObject>,
-    /// A sample of the scene's generated referring expressions (one per relation type).
-    pub expressions: Vec<Expression>,
+    /// A sample of the scene's generated referring expressions (one per relation type), asked
+    /// through the `Refer` service.
+    pub answers: Vec<DemoAnswer>,
     /// Open-vocabulary lookups, or why the text encoder could not run.
     pub vocabulary: std::result::Result<Vec<VocabularyMatch>, String>,
     /// The listed instances against the scene's objects, with `eval map`'s yardstick.
@@ -346,6 +358,41 @@ pub fn run_demo(options: &DemoOptions) -> Result<DemoReport> {
             break;
         }
     }
+    // Referring questions through the `Refer` service, as a ROS 2 client would ask them: one
+    // generated expression per relation type.
+    let mut expressions = groupforward_sim::referring::scene_expressions(&options.scene)
+        .map_err(|e| DemoError::Sim(e.to_string()))?;
+    let mut seen = std::collections::BTreeSet::new();
+    expressions.retain(|e| seen.insert(e.relation));
+    let refer_service =
+        rmw_zenoh::resolve_name(&config.node.namespace, &config.node.name, "~/refer")
+            .map_err(TransportError::from)?;
+    let truth = crate::eval::run::truth_objects(&sim.scene, |_| 1);
+    let mut answers = Vec::new();
+    for expression in &expressions {
+        let asked = Instant::now();
+        let response = call_service::<Refer>(
+            &session,
+            domain,
+            &refer_service,
+            &crate::eval::refer::request_for(expression),
+            timeout,
+        )?;
+        let millis = asked.elapsed().as_secs_f64() * 1e3;
+        let mut answered: Vec<u16> = response
+            .boxes
+            .iter()
+            .map(|b| crate::eval::refer::matched_object(&crate::eval::refer::oriented(b), &truth).0)
+            .collect();
+        answered.sort_unstable();
+        answered.dedup();
+        answers.push(DemoAnswer {
+            expression: expression.clone(),
+            response,
+            answered,
+            millis,
+        });
+    }
     shutdown.store(true, Ordering::Relaxed);
     match node_thread.join() {
         Ok(result) => {
@@ -367,10 +414,6 @@ pub fn run_demo(options: &DemoOptions) -> Result<DemoReport> {
         })
         .collect();
     let map_score = score_listed(&sim, &instances, &options.scene);
-    let mut expressions = groupforward_sim::referring::scene_expressions(&options.scene)
-        .map_err(|e| DemoError::Sim(e.to_string()))?;
-    let mut seen = std::collections::BTreeSet::new();
-    expressions.retain(|e| seen.insert(e.relation));
     Ok(DemoReport {
         scene: options.scene.name.clone(),
         recorded,
@@ -379,7 +422,7 @@ pub fn run_demo(options: &DemoOptions) -> Result<DemoReport> {
         malformed_published: 2,
         instances,
         objects,
-        expressions,
+        answers,
         vocabulary: match_vocabulary(DEMO_QUERIES),
         map_score,
         elapsed: started.elapsed(),

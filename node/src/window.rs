@@ -345,6 +345,8 @@ pub struct WindowModels {
     pub reconstruction: ReconstructionModel,
     pub semantic: Option<SemanticModel>,
     pub vocabulary: Option<Vocabulary>,
+    /// The text encoder that embedded the vocabulary, kept for referring queries' phrases.
+    pub text_encoder: Option<TextEncoder>,
     pub grouping: GroupingParams,
 }
 
@@ -380,6 +382,7 @@ impl WindowModels {
                 }
             },
         };
+        let mut text_encoder = None;
         let vocabulary = semantic.as_ref().and_then(|_| {
             let embedded =
                 TextEncoder::load(&models.text_encoder, &options).and_then(|mut encoder| {
@@ -388,6 +391,7 @@ impl WindowModels {
                         .iter()
                         .map(|phrase| encoder.embed(phrase))
                         .collect::<crate::model::Result<Vec<_>>>()?;
+                    text_encoder = Some(encoder);
                     Ok(Vocabulary {
                         phrases: semantics.vocabulary.clone(),
                         embeddings,
@@ -404,6 +408,7 @@ impl WindowModels {
             reconstruction,
             semantic,
             vocabulary,
+            text_encoder,
             grouping: GroupingParams::default(),
         })
     }

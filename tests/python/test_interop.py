@@ -1,6 +1,7 @@
 """The node against independent implementations: Python eclipse-zenoh speaking rmw_zenoh's wire format
 (keys, CDR from rosbags, attachments, liveliness) and bags written by Python rosbags."""
 
+import json
 import re
 import subprocess
 import time
@@ -132,13 +133,13 @@ def test_liveliness_tokens_follow_rmw_zenoh(node, ts):
 
 
 def test_service_type_hashes_match_an_independent_computation(node, ts):
-    """The node's four services announce the RIHS01 hash that rosbags' type-description hashing gives
+    """The node's five services announce the RIHS01 hash that rosbags' type-description hashing gives
     (service_hashes.py, itself checked against the hash ROS 2 publishes for AddTwoInts)."""
     assert add_two_ints_hash() == ADD_TWO_INTS
     tokens = [str(reply.ok.key_expr) for reply in node.session.liveliness().get('@ros2_lv/0/**', timeout=3)
               if reply.ok is not None and '/SS/' in str(reply.ok.key_expr)]
     for service, name in [('list_instances', 'ListInstances'), ('get_instance', 'GetInstance'),
-                          ('save_map', 'SaveMap'), ('load_map', 'LoadMap')]:
+                          ('save_map', 'SaveMap'), ('load_map', 'LoadMap'), ('refer', 'Refer')]:
         expected = service_hash(ts, f'groupforward_msgs/srv/{name}')
         token = next(t for t in tokens if f'%groupforward%{service}/' in t)
         assert f'/groupforward_msgs::srv::dds_::{name}_/{expected}/' in token, (token, expected)
@@ -164,6 +165,42 @@ def test_service_call_and_json_api_from_python(node, ts):
     assert set(status) >= {'header', 'uptime_secs', 'cameras', 'tf_received', 'rejections'}
     errors = [r.err for r in node.session.get('groupforward/default/no_such_api', timeout=3) if r.err is not None]
     assert errors and 'available' in errors[0].payload.to_string()
+
+
+def test_refer_service_and_json_api_from_python_say_why_an_empty_map_has_no_answer(node, ts):
+    """A ROS 2 client on rmw_zenoh (rosbags CDR through eclipse-zenoh) asks the Refer service; with
+    nothing mapped yet the answer is a clear refusal, never a guess, and the node keeps serving."""
+    tokens = [str(reply.ok.key_expr) for reply in node.session.liveliness().get('@ros2_lv/0/**', timeout=3)
+              if reply.ok is not None and '/SS/' in str(reply.ok.key_expr)]
+    token = next(t for t in tokens if '%groupforward%refer/' in t)
+    refer_hash = token.split('/')[-2]
+    T = ts.types  # noqa: N806
+    request_type = 'groupforward_msgs/srv/Refer_Request'
+    pose = T['geometry_msgs/msg/Pose'](
+        position=T['geometry_msgs/msg/Point'](x=0.0, y=0.0, z=1.0),
+        orientation=T['geometry_msgs/msg/Quaternion'](x=0.0, y=0.0, z=0.0, w=1.0))
+    request = T[request_type](expression='the chair closest to the lamp', use_view_pose=True, view_pose=pose,
+                              max_targets=0, reasoner='')
+    replies = list(node.session.get(f'0/groupforward/refer/groupforward_msgs::srv::dds_::Refer_/{refer_hash}',
+                                    payload=bytes(ts.serialize_cdr(request, request_type)),
+                                    attachment=attachment(7), timeout=10))
+    assert len(replies) == 1 and replies[0].ok is not None
+    response = ts.deserialize_cdr(replies[0].ok.payload.to_bytes(), 'groupforward_msgs/srv/Refer_Response')
+    assert not response.success
+    assert response.message, 'a refusal says why'
+    assert len(response.instance_ids) == 0 and len(response.candidates) == 0
+
+    def refer_json(body):
+        for reply in node.session.get('groupforward/default/refer', payload=body, timeout=10):
+            if reply.ok is not None:
+                return json.loads(reply.ok.payload.to_string())
+            return {'error': reply.err.payload.to_string()}
+        return None
+
+    answer = refer_json(json.dumps({'expression': ''}))
+    assert answer['success'] is False and 'empty' in answer['message'], answer
+    assert 'expression' in refer_json('not json')['error']
+    assert node.process.poll() is None
 
 
 def write_bag(ts, path, frames):

@@ -1,6 +1,7 @@
 #![allow(clippy::unwrap_used)]
 //! The demo end to end: a sim-recorded bag replayed over zenoh reaches the node frame for frame,
-//! malformed input is counted, and the report carries the scene's ground truth and expressions.
+//! malformed input is counted, and the node answers the scene's referring expressions through its
+//! `Refer` service.
 
 use groupforward::demo::{run_demo, DemoOptions};
 
@@ -59,11 +60,33 @@ fn the_demo_replays_a_sim_recorded_bag_into_the_node() {
     let score = report.map_score.summary();
     assert_eq!(score.room_instances, 0);
     assert!(report.map_score.found_25 >= 2, "{score:?}");
-    assert!(report.expressions.len() >= 5);
-    for e in &report.expressions {
+    // Referring questions went through the `Refer` service over zenoh: every one came back, with
+    // the expression's instances (boxes, poses, Gaussians) or a reason; answers are closed-set
+    // (only candidates) and carry every candidate's scores.
+    assert!(report.answers.len() >= 5);
+    let mut answered = 0;
+    for a in &report.answers {
+        let e = &a.expression;
         assert!(e
             .targets
             .iter()
             .all(|t| report.objects.iter().any(|o| o.0 == *t)));
+        let r = &a.response;
+        if !r.success {
+            assert!(!r.message.is_empty(), "{}", e.text);
+            continue;
+        }
+        answered += 1;
+        assert_eq!(r.reasoner_used, "builtin");
+        assert_eq!(r.boxes.len(), r.instance_ids.len());
+        assert_eq!(r.poses.len(), r.instance_ids.len());
+        assert!(r.target_cloud.width > 0, "{}", e.text);
+        assert!(r
+            .instance_ids
+            .iter()
+            .all(|id| r.candidates.iter().any(|c| &c.id == id)));
+        assert!(r.candidates.iter().all(|c| c.score.is_finite()
+            && (0.0..=1.0).contains(&c.semantic_score)));
     }
+    assert!(answered >= 3, "{answered} answers");
 }

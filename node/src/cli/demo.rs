@@ -131,12 +131,41 @@ fn print_report(report: &DemoReport) {
             p[0], p[1], p[2]
         );
     }
-    println!("  referring expressions generated from ground truth (one per relation type):");
-    for e in &report.expressions {
-        let view = e.view.map_or(String::new(), |v| {
-            format!("  [seen from frame {}]", v.frame)
-        });
-        println!("    {:<48} -> {:?}{view}", e.text, e.targets);
+    let right = report
+        .answers
+        .iter()
+        .filter(|a| a.response.success && a.answered == a.expression.targets)
+        .count();
+    println!(
+        "  refer service: {right} of {} expressions generated from ground truth (one per relation type) answered with exactly their objects:",
+        report.answers.len()
+    );
+    for a in &report.answers {
+        let e = &a.expression;
+        let view = e
+            .view
+            .map_or(String::new(), |v| format!(" [seen from frame {}]", v.frame));
+        let verdict = if !a.response.success {
+            format!("no answer: {}", a.response.message)
+        } else {
+            let ids: Vec<String> = a
+                .response
+                .instance_ids
+                .iter()
+                .zip(&a.answered)
+                .map(|(id, object)| format!("{id} (#{object})"))
+                .collect();
+            let mark = if a.answered == e.targets {
+                "right"
+            } else {
+                "wrong"
+            };
+            format!("{} {mark}", ids.join(", "))
+        };
+        println!(
+            "    {:<44} truth {:?} -> {verdict}; {:.0} ms{view}",
+            e.text, e.targets, a.millis
+        );
     }
     match &report.vocabulary {
         Ok(matches) => {

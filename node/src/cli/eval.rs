@@ -51,6 +51,29 @@ pub enum EvalCommand {
         #[arg(long, default_value = "target/eval/map")]
         out: PathBuf,
     },
+    /// Referring: each scene replayed through the node's stages, then the scene's generated
+    /// expressions (or `--expressions`) asked through the `Refer` service's handler; selection
+    /// accuracy, top-K recall, Acc@0.25 / 0.5, by relation, easy / hard, view-dependent or not,
+    /// and query latency.
+    Refer {
+        #[arg(long, default_value = "benchmark")]
+        split: String,
+        #[arg(long, default_value_t = 10)]
+        scenes: u64,
+        #[arg(long, default_value_t = 0)]
+        first_index: u64,
+        /// Score these scene files (or `<split>:<index>` specs) instead of a split (repeatable).
+        #[arg(long)]
+        scene: Vec<String>,
+        /// JSON lines of the sim's expression records (`scene`, `text`, `targets`, ...) to ask
+        /// instead of the generated ones; only lines whose `scene` is replayed are asked.
+        #[arg(long)]
+        expressions: Option<PathBuf>,
+        #[arg(long)]
+        effects: Option<String>,
+        #[arg(long, default_value = "target/eval/refer")]
+        out: PathBuf,
+    },
 }
 
 pub fn run(command: EvalCommand) -> Result<()> {
@@ -76,6 +99,28 @@ pub fn run(command: EvalCommand) -> Result<()> {
                 }
             }
             eval_map(&files, model, effects.as_deref(), &out)
+        }
+        EvalCommand::Refer {
+            split,
+            scenes,
+            first_index,
+            scene,
+            expressions,
+            effects,
+            out,
+        } => {
+            let mut files = if scene.is_empty() {
+                split_scenes(&split, first_index, scenes)?
+            } else {
+                scene.iter().map(|s| load_scene(s)).collect::<Result<_>>()?
+            };
+            if let Some(name) = &effects {
+                let preset = Preset::parse(name).map_err(anyhow::Error::msg)?;
+                for file in &mut files {
+                    file.apply_preset(preset);
+                }
+            }
+            crate::eval_refer::eval_refer(&files, expressions.as_deref(), &out)
         }
     }
 }

@@ -4,7 +4,9 @@
 mod bench;
 mod demo;
 mod eval;
+mod eval_refer;
 mod model_check;
+mod query;
 mod replay;
 mod run;
 mod sim;
@@ -28,6 +30,8 @@ struct Cli {
 enum Command {
     /// Run the node: subscribe to the configured cameras and TF, build the instance map, serve it.
     Run(run::RunArgs),
+    /// Ask a running node a referring question through its `Refer` service.
+    Query(query::QueryArgs),
     /// Publish a rosbag2 MCAP bag (a .mcap file or a bag directory) over zenoh.
     Replay(replay::ReplayArgs),
     /// Check an ONNX model against its manifest (names, shapes, types) and print its contract.
@@ -56,7 +60,7 @@ fn main() -> Result<()> {
     let cli = Cli::parse();
     // The demo, eval and bench print summaries: node logs below WARN only with RUST_LOG.
     let default_filter = match cli.command {
-        Command::Demo(_) | Command::Eval { .. } | Command::Bench { .. } => {
+        Command::Demo(_) | Command::Eval { .. } | Command::Bench { .. } | Command::Query(_) => {
             "warn,zenoh=warn,ort=warn"
         }
         _ => "info,zenoh=warn,ort=warn",
@@ -71,6 +75,7 @@ fn main() -> Result<()> {
     match cli.command {
         Command::Run(args) => run::run(args),
         Command::Replay(args) => replay::run(args),
+        Command::Query(args) => query::run(args),
         Command::ModelCheck(args) => model_check::run(args),
         Command::Sim { command } => sim::run(command),
         Command::Bench { command } => bench::run(command),

@@ -3,7 +3,10 @@
 //!
 //! - [`run`]: a sim scene through the node's stages (bag → ingest → keyframes → window pass →
 //!   fusion), every window processed, ground truth kept beside the pipeline;
-//! - [`score`]: the final map and each window's instances scored against the objects.
+//! - [`score`]: the final map and each window's instances scored against the objects;
+//! - [`refer`]: the scene's referring expressions asked through the `Refer` service's handler,
+//!   answers matched to the objects they name.
 
+pub mod refer;
 pub mod run;
 pub mod score;

@@ -49,6 +49,8 @@ pub struct SceneRun {
     pub frames: usize,
     /// Depth pixels ingest received, and why some were invalid (never lifted).
     pub depth: DepthValidity,
+    /// The final map (what referring queries are asked on).
+    pub map: SceneMap,
 }
 
 /// The ground-truth box of a placed object: the union of its parts in its own frame, scaled,
@@ -213,5 +215,6 @@ pub fn run_scene(
         window_millis,
         frames: sim.frame_count(),
         depth,
+        map,
     })
 }

@@ -40,6 +40,8 @@ pub fn run(
     let mut initial = Shared {
         map_file: config.map.file.clone(),
         hypotheses: config.semantics.hypotheses,
+        refer: config.refer.clone(),
+        world_frame: config.tf.world_frame.clone(),
         ..Shared::default()
     };
     if let Some(file) = config

@@ -3,21 +3,27 @@
 
 use std::sync::{Arc, Mutex};
 
+use glam::{DQuat, DVec3};
 use groupforward_msgs::gf_msgs::{
     GetInstanceRequest, GetInstanceResponse, Instance, ListInstancesRequest, ListInstancesResponse,
-    MapPathRequest, MapResultResponse, NodeStatus,
+    MapPathRequest, MapResultResponse, NodeStatus, ReferRequest, ReferResponse,
 };
 use groupforward_msgs::rmw_zenoh::{resolve_name, Qos};
-use groupforward_msgs::services::{GetInstance, ListInstances, LoadMap, SaveMap};
+use groupforward_msgs::services::{GetInstance, ListInstances, LoadMap, Refer, SaveMap};
 use groupforward_msgs::vision_msgs::ObjectHypothesis;
 use groupforward_msgs::{builtin_interfaces::Time, cdr, RosMessage, RosService};
+use groupforward_sim::referring::ViewPose;
 
 use super::error::Result;
 use super::queue::InputQueue;
 use crate::config::Config;
+use crate::frame::Keyframe;
 use crate::graph::{persist, SceneMap};
 use crate::group::semantics::Vocabulary;
 use crate::ingest::{Ingest, Route};
+use crate::model::text::TextEncoder;
+use crate::recon::Rigid;
+use crate::refer::{self, ReferScene, ReferSection};
 use crate::transport::{Endpoint, Transport};
 
 /// State shared with service and JSON handlers, which run on transport threads.
@@ -36,6 +42,13 @@ pub struct Shared {
     pub hypotheses: usize,
     /// Windows that built nothing: no view had valid depth.
     pub windows_skipped: u64,
+    /// What referring queries read: `map` as of its last change.
+    pub refer_scene: Arc<ReferScene>,
+    /// Embeds query phrases (set with the vocabulary once the models load).
+    pub text_encoder: Option<Arc<Mutex<TextEncoder>>>,
+    pub refer: ReferSection,
+    /// The map's frame (answers' clouds are expressed in it).
+    pub world_frame: String,
 }
 
 fn time_of(nanos: i64) -> Time {
@@ -56,7 +69,6 @@ pub fn instance_messages(
         .filter(|i| !vocabulary.is_some_and(|v| v.is_structure(&i.prototype)))
         .map(|i| {
             let b = i.oriented_box();
-            let half_yaw = b.yaw / 2.0;
             Instance {
                 id: i.id.clone(),
                 hypotheses: vocabulary
@@ -68,19 +80,7 @@ pub fn instance_messages(
                         score: f64::from(score),
                     })
                     .collect(),
-                pose: groupforward_msgs::geometry_msgs::Pose {
-                    position: groupforward_msgs::geometry_msgs::Point {
-                        x: b.centre.x,
-                        y: b.centre.y,
-                        z: b.centre.z,
-                    },
-                    orientation: groupforward_msgs::geometry_msgs::Quaternion {
-                        x: 0.0,
-                        y: 0.0,
-                        z: half_yaw.sin(),
-                        w: half_yaw.cos(),
-                    },
-                },
+                pose: refer::response::box_pose(&b),
                 size: groupforward_msgs::geometry_msgs::Vector3 {
                     x: b.size.x,
                     y: b.size.y,
@@ -103,9 +103,13 @@ impl Shared {
         self.refresh_instances();
     }
 
-    /// Rebuild the instance messages after the map changed in place.
+    /// Rebuild the instance messages and the referring snapshot after the map changed in place.
     pub fn refresh_instances(&mut self) {
         self.instances = instance_messages(&self.map, self.vocabulary.as_ref(), self.hypotheses);
+        match ReferScene::build(&self.map, self.vocabulary.as_ref()) {
+            Ok(scene) => self.refer_scene = Arc::new(scene),
+            Err(e) => tracing::warn!("referring snapshot not refreshed: {e}"),
+        }
     }
 }
 
@@ -214,14 +218,176 @@ fn handle_get(shared: &Mutex<Shared>, request: &[u8]) -> std::result::Result<Vec
     cdr::encode(&response).map_err(|e| e.to_string())
 }
 
-fn handle_json(shared: &Mutex<Shared>, name: &str) -> std::result::Result<String, String> {
+/// The view a request decides view-dependent words in: its pose when it gives one.
+fn request_view(request: &ReferRequest) -> std::result::Result<Option<ViewPose>, String> {
+    if !request.use_view_pose {
+        return Ok(None);
+    }
+    let p = &request.view_pose;
+    let rotation = DQuat::from_xyzw(
+        p.orientation.x,
+        p.orientation.y,
+        p.orientation.z,
+        p.orientation.w,
+    );
+    let position = DVec3::new(p.position.x, p.position.y, p.position.z);
+    if !(position.is_finite() && rotation.is_finite()) || (rotation.length() - 1.0).abs() > 1e-3 {
+        return Err("view_pose is not a finite pose with a unit quaternion".into());
+    }
+    Ok(Some(ViewPose::new(0, rotation.normalize(), position)))
+}
+
+/// Answer a referring request on the node's current snapshot (the service's work, CDR aside).
+pub fn refer_request(shared: &Mutex<Shared>, request: &ReferRequest) -> ReferResponse {
+    let failure = |message: String| {
+        // A question the map cannot answer is an answer, not a fault of the node.
+        tracing::info!("refer {:?}: {message}", request.expression);
+        ReferResponse {
+            success: false,
+            message,
+            ..ReferResponse::default()
+        }
+    };
+    // Bad input is refused first, whatever state the node is in.
+    if let Err(e) = refer::parse(&request.expression) {
+        return failure(refer::ReferError::from(e).to_string());
+    }
+    let view = match request_view(request) {
+        Ok(view) => view,
+        Err(message) => return failure(message),
+    };
+    // Read what the query needs, then answer without holding the map's lock.
+    let (scene, encoder, section, world_frame) = match shared.lock() {
+        Ok(s) => (
+            s.refer_scene.clone(),
+            s.text_encoder.clone(),
+            s.refer.clone(),
+            s.world_frame.clone(),
+        ),
+        Err(e) => return failure(e.to_string()),
+    };
+    let Some(encoder) = encoder else {
+        return failure("the text encoder is not loaded (yet): no phrase can be matched".into());
+    };
+    let wants_vlm = request.reasoner == "vlm";
+    if !matches!(request.reasoner.as_str(), "" | "builtin" | "vlm") {
+        return failure(format!(
+            "unknown reasoner {:?}; use \"builtin\" or \"vlm\"",
+            request.reasoner
+        ));
+    }
+    let answered = {
+        let Ok(mut encoder) = encoder.lock() else {
+            return failure("the text encoder's lock is poisoned".into());
+        };
+        refer::answer(
+            &scene,
+            &mut *encoder,
+            &refer::Request {
+                expression: request.expression.clone(),
+                view,
+                max_targets: request.max_targets as usize,
+            },
+            &section,
+        )
+    };
+    let mut answer = match answered {
+        Ok(answer) => answer,
+        Err(e) => return failure(e.to_string()),
+    };
+    if wants_vlm {
+        answer.reasoner_used = "fallback".into();
+        answer.trace = format!(
+            "no VLM is configured: the built-in reasoner answered; {}",
+            answer.trace
+        );
+    }
+    let gaussians: Vec<_> = match shared.lock() {
+        Ok(s) => answer
+            .chosen
+            .iter()
+            .map(|c| {
+                let id = &scene.nodes[c.index].id;
+                s.map
+                    .instances
+                    .iter()
+                    .find(|i| &i.id == id)
+                    .map(|i| i.gaussians.clone())
+                    .unwrap_or_default()
+            })
+            .collect(),
+        Err(e) => return failure(e.to_string()),
+    };
+    let novel = view
+        .zip(scene.keyframes.first())
+        .map(|(v, latest)| Keyframe {
+            stamp_nanos: latest.stamp_nanos,
+            camera: latest.camera,
+            world_from_camera: Rigid::new(
+                DQuat::from_array(v.orientation),
+                DVec3::from(v.position),
+            ),
+        });
+    refer::response::response(&answer, &scene, &gaussians, &world_frame, novel.as_ref())
+}
+
+/// The `Refer` service: CDR in, CDR out.
+pub fn handle_refer(
+    shared: &Mutex<Shared>,
+    request: &[u8],
+) -> std::result::Result<Vec<u8>, String> {
+    let request: ReferRequest = cdr::decode(request).map_err(|e| e.to_string())?;
+    cdr::encode(&refer_request(shared, &request)).map_err(|e| e.to_string())
+}
+
+/// A referring answer as JSON: ids, confidences, boxes, candidates and the reasoning (clouds and
+/// masks are the service's).
+fn refer_json(
+    shared: &Mutex<Shared>,
+    body: &str,
+) -> std::result::Result<serde_json::Value, String> {
+    let body: serde_json::Value = serde_json::from_str(body).map_err(|e| {
+        format!("the refer API takes JSON like {{\"expression\": \"the chair\"}}: {e}")
+    })?;
+    let expression = body["expression"]
+        .as_str()
+        .ok_or("the refer API needs a string `expression`")?;
+    let request = ReferRequest {
+        expression: expression.into(),
+        max_targets: body["max_targets"].as_u64().unwrap_or(0) as u32,
+        reasoner: body["reasoner"].as_str().unwrap_or("").into(),
+        ..ReferRequest::default()
+    };
+    let r = refer_request(shared, &request);
+    Ok(serde_json::json!({
+        "success": r.success,
+        "message": r.message,
+        "instance_ids": r.instance_ids,
+        "confidences": r.confidences,
+        "boxes": r.boxes,
+        "candidates": r.candidates,
+        "reasoner_used": r.reasoner_used,
+        "trace": r.trace,
+        "target_points": r.target_cloud.width,
+        "views_with_masks": r.view_masks.len(),
+    }))
+}
+
+fn handle_json(
+    shared: &Mutex<Shared>,
+    name: &str,
+    body: &str,
+) -> std::result::Result<String, String> {
+    if name == "refer" {
+        return refer_json(shared, body).map(|v| v.to_string());
+    }
     let shared = shared.lock().map_err(|e| e.to_string())?;
     let value = match name {
         "status" => serde_json::to_value(&shared.status),
         "instances" => serde_json::to_value(&shared.instances),
         other => {
             return Err(format!(
-                "unknown API `{other}`; available: status, instances"
+                "unknown API `{other}`; available: status, instances, refer"
             ))
         }
     };
@@ -290,6 +456,13 @@ pub fn declare(
         LoadMap::TYPE_NAME,
         Qos::default(),
     )?;
+    let refer = Endpoint::new(
+        &resolve_name(ns, name, "~/refer")?,
+        Refer::TYPE_NAME,
+        Qos::default(),
+    )?;
+    let s = shared.clone();
+    transport.serve(&refer, Arc::new(move |req| handle_refer(&s, req)))?;
     let s = shared.clone();
     transport.serve(&save, Arc::new(move |req| handle_save(&s, req)))?;
     let s = shared.clone();
@@ -300,11 +473,14 @@ pub fn declare(
     transport.serve(&get, Arc::new(move |req| handle_get(&s, req)))?;
     let prefix = config.api_prefix();
     let s = shared.clone();
-    transport.serve_json(&prefix, Arc::new(move |api, _body| handle_json(&s, api)))?;
+    transport.serve_json(
+        &prefix,
+        Arc::new(move |api, body| handle_json(&s, api, &String::from_utf8_lossy(body))),
+    )?;
     Ok(Declared {
         subscriptions,
         status,
-        services: vec![list, get, save, load],
+        services: vec![refer, list, get, save, load],
         json_prefix: prefix,
     })
 }
@@ -381,7 +557,7 @@ mod tests {
     fn the_json_api_serves_instances_and_status_and_names_what_it_serves() {
         let shared = shared();
         let instances: serde_json::Value =
-            serde_json::from_str(&handle_json(&shared, "instances").unwrap()).unwrap();
+            serde_json::from_str(&handle_json(&shared, "instances", "").unwrap()).unwrap();
         let ids: Vec<&str> = instances
             .as_array()
             .unwrap()
@@ -391,9 +567,9 @@ mod tests {
         assert_eq!(ids, ["inst_000001", "inst_000002", "inst_000003"]);
         assert_eq!(instances[2]["hypotheses"][0]["class_id"], "lamp");
         let status: serde_json::Value =
-            serde_json::from_str(&handle_json(&shared, "status").unwrap()).unwrap();
+            serde_json::from_str(&handle_json(&shared, "status", "").unwrap()).unwrap();
         assert!(status["cameras"].is_array());
-        let unknown = handle_json(&shared, "graph").unwrap_err();
-        assert!(unknown.contains("status, instances"), "{unknown}");
+        let unknown = handle_json(&shared, "graph", "").unwrap_err();
+        assert!(unknown.contains("status, instances, refer"), "{unknown}");
     }
 }

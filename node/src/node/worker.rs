@@ -44,6 +44,7 @@ pub(super) fn start_window_worker(
         };
         if let Ok(mut s) = shared.lock() {
             s.vocabulary = models.vocabulary.clone();
+            s.text_encoder = models.text_encoder.take().map(|e| Arc::new(Mutex::new(e)));
             s.refresh_instances();
         }
         while let Ok(frames) = receiver.recv() {

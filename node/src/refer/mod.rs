@@ -10,6 +10,7 @@
 pub mod concepts;
 pub mod parse;
 pub mod reasoner;
+pub mod response;
 pub mod retrieve;
 pub mod scene;
 #[cfg(test)]

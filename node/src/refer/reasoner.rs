@@ -7,12 +7,15 @@ use groupforward_sim::referring::{Geometry, ViewPose};
 
 use super::parse::{Count, Query, Relation};
 use super::retrieve::{
-    color_distance, color_rgb, geometry, relation_margin, superlative_key, Retrieval, Scored,
+    color_distance, color_rgb, geometries, relation_margin, superlative_key, Retrieval, Scored,
 };
 use super::scene::ReferScene;
 
 /// Candidates below this semantic score never fit a concept, however weak the field.
 pub const MIN_SEMANTIC: f32 = 0.05;
+
+/// Boxes overlapping at least this much (3D IoU) are one object.
+pub const DUPLICATE_IOU: f64 = 0.25;
 
 /// One chosen instance.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -67,12 +70,7 @@ pub fn reason(
     if query.view_dependent() && view.is_none() {
         return Err(ReasonError::NoView(query.text.clone()));
     }
-    let geometries: Vec<Geometry> = scene
-        .nodes
-        .iter()
-        .enumerate()
-        .map(|(i, n)| geometry(n, i))
-        .collect();
+    let geometries: Vec<Geometry> = geometries(scene);
     let mut trace = format!(
         "{} of {} candidates fit {:?}",
         fit.len(),
@@ -149,6 +147,21 @@ pub fn reason(
         .map(|(c, k, _)| format!("{}={k:.2}", scene.nodes[c.index].id))
         .collect();
     trace += &format!("; keys {}", keys.join(" "));
+    // Two instances whose boxes overlap this much are one object seen twice (a duplicate in the
+    // map): when several are asked for, they are different objects.
+    if query.count != Count::One {
+        let mut distinct: Vec<(Scored, f64, bool)> = Vec::new();
+        for k in keyed {
+            let b = &scene.nodes[k.0.index].bbox;
+            if !distinct
+                .iter()
+                .any(|d| scene.nodes[d.0.index].bbox.iou(b) >= DUPLICATE_IOU)
+            {
+                distinct.push(k);
+            }
+        }
+        keyed = distinct;
+    }
     let wanted = match query.count {
         Count::One => 1,
         Count::Exactly(n) => n,

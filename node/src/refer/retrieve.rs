@@ -55,6 +55,16 @@ pub fn geometry(node: &ReferNode, index: usize) -> Geometry {
     }
 }
 
+/// The relation geometry of every node of `scene`, in order.
+pub fn geometries(scene: &ReferScene) -> Vec<Geometry> {
+    scene
+        .nodes
+        .iter()
+        .enumerate()
+        .map(|(i, n)| geometry(n, i))
+        .collect()
+}
+
 /// How far `t` satisfies `relation` with respect to anchor(s) `a` (and `b` for between), as the
 /// Sr3D margin: metres for metric relations, degrees for left / right, positive when it holds.
 /// Closest / farthest give minus / plus the centre distance (ranked, not thresholded).
@@ -177,12 +187,7 @@ pub fn retrieve(
     k: usize,
 ) -> Retrieval {
     let anchor_lists = anchor_lists(scene, anchors);
-    let geometries: Vec<Geometry> = scene
-        .nodes
-        .iter()
-        .enumerate()
-        .map(|(i, n)| geometry(n, i))
-        .collect();
+    let geometries = geometries(scene);
     let semantic: Vec<f32> = scene.nodes.iter().map(|n| target.score(n)).collect();
     let best_semantic = semantic.iter().copied().fold(0.0, f32::max);
     // Superlatives rank among the instances that fit the concept.

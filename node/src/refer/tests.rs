@@ -276,3 +276,20 @@ fn degenerate_boxes_and_coincident_instances_stay_finite() {
         );
     }
 }
+
+#[test]
+fn a_duplicate_instance_of_one_object_is_not_a_second_object() {
+    let mut scene = room();
+    // A second instance of table 1 (the map saw it twice), slightly shifted.
+    scene.nodes.push(node(
+        12,
+        "table",
+        [-0.55, -0.4, 0.0],
+        [0.65, 0.4, 0.75],
+        BROWN,
+    ));
+    let got = ask(&scene, "both tables").unwrap();
+    let ids = ids(&got, &scene);
+    assert_eq!(ids.len(), 2);
+    assert!(ids.contains(&"inst_000002".to_owned()), "{ids:?}");
+}

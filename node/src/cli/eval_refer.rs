@@ -1,0 +1,225 @@
+//! `groupforward eval refer`: referring scored end to end. Writes `DIR/expressions.csv` (one row
+//! per expression), `DIR/summary.json` and `DIR/summary.md`, and prints the table.
+
+use std::collections::BTreeMap;
+use std::io::Write;
+use std::path::Path;
+use std::sync::{Arc, Mutex};
+
+use anyhow::{Context, Result};
+use groupforward::eval::refer::{ask_scene, ReferRecord};
+use groupforward::eval::run::run_scene;
+use groupforward::window::WindowModels;
+use groupforward_sim::referring::{scene_expressions, Expression};
+use groupforward_sim::scene::SceneFile;
+
+use crate::eval::eval_config;
+use crate::sim::progress_bar;
+
+/// A line of `--expressions`: the scene's name with the sim's expression record.
+#[derive(Debug, serde::Deserialize)]
+struct ExpressionLine {
+    scene: String,
+    #[serde(flatten)]
+    expression: Expression,
+}
+
+fn load_expressions(path: &Path) -> Result<Vec<(String, Expression)>> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    text.lines()
+        .enumerate()
+        .filter(|(_, l)| !l.trim().is_empty())
+        .map(|(i, l)| {
+            let line: ExpressionLine = serde_json::from_str(l).with_context(|| {
+                format!("{}:{}: not an expression record", path.display(), i + 1)
+            })?;
+            Ok((line.scene, line.expression))
+        })
+        .collect()
+}
+
+/// Share of records with `f` true (0 for none).
+fn rate(records: &[&ReferRecord], f: impl Fn(&ReferRecord) -> bool) -> f64 {
+    if records.is_empty() {
+        return 0.0;
+    }
+    records.iter().filter(|r| f(r)).count() as f64 / records.len() as f64
+}
+
+#[derive(Debug, serde::Serialize)]
+struct Group {
+    queries: usize,
+    selection_accuracy: f64,
+    topk_recall: f64,
+    targets_in_map: f64,
+    accuracy_when_in_map: f64,
+    acc_at_25: f64,
+    acc_at_50: f64,
+}
+
+fn group(records: &[&ReferRecord]) -> Group {
+    let in_map: Vec<&ReferRecord> = records
+        .iter()
+        .copied()
+        .filter(|r| r.targets_in_map)
+        .collect();
+    let single: Vec<&ReferRecord> = records
+        .iter()
+        .copied()
+        .filter(|r| r.targets.len() == 1)
+        .collect();
+    Group {
+        queries: records.len(),
+        selection_accuracy: rate(records, |r| r.correct),
+        topk_recall: rate(records, |r| r.topk_hit),
+        targets_in_map: rate(records, |r| r.targets_in_map),
+        accuracy_when_in_map: rate(&in_map, |r| r.correct),
+        acc_at_25: rate(&single, |r| r.iou >= 0.25),
+        acc_at_50: rate(&single, |r| r.iou >= 0.5),
+    }
+}
+
+pub fn eval_refer(files: &[SceneFile], expressions: Option<&Path>, out: &Path) -> Result<()> {
+    let config = eval_config(None);
+    let mut models = WindowModels::load(&config.models, &config.semantics)
+        .context("loading the models (`make setup` installs ONNX Runtime)")?;
+    let encoder = models.text_encoder.take().map(|e| Arc::new(Mutex::new(e)));
+    let given = expressions.map(load_expressions).transpose()?;
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    let bar = progress_bar(files.len() as u64, "eval refer");
+    let mut records = Vec::new();
+    for file in files {
+        bar.set_message(file.name.clone());
+        let asked: Vec<Expression> = match &given {
+            Some(lines) => lines
+                .iter()
+                .filter(|(scene, _)| *scene == file.name)
+                .map(|(_, e)| e.clone())
+                .collect(),
+            None => scene_expressions(file).map_err(|e| anyhow::anyhow!("{}: {e}", file.name))?,
+        };
+        let run = run_scene(file, &config, &mut models)
+            .with_context(|| format!("scene {}", file.name))?;
+        records.extend(ask_scene(
+            &file.name,
+            run.map,
+            &run.objects,
+            models.vocabulary.clone(),
+            encoder.clone(),
+            &config.refer,
+            &asked,
+        ));
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    write_outputs(&records, out)
+}
+
+fn write_outputs(records: &[ReferRecord], out: &Path) -> Result<()> {
+    let mut csv = std::io::BufWriter::new(std::fs::File::create(out.join("expressions.csv"))?);
+    writeln!(
+        csv,
+        "scene,expression,relation,view_dependent,hard,targets,answered,correct,topk_hit,targets_in_map,iou,millis,reasoner,message"
+    )?;
+    let ids = |v: &[u16]| v.iter().map(u16::to_string).collect::<Vec<_>>().join(" ");
+    for r in records {
+        writeln!(
+            csv,
+            "{},\"{}\",{},{},{},{},{},{},{},{},{:.4},{:.3},{},\"{}\"",
+            r.scene,
+            r.expression.replace('"', "'"),
+            r.relation,
+            r.view_dependent,
+            r.hard,
+            ids(&r.targets),
+            ids(&r.answered),
+            r.correct,
+            r.topk_hit,
+            r.targets_in_map,
+            r.iou,
+            r.millis,
+            r.reasoner_used,
+            r.message.replace('"', "'"),
+        )?;
+    }
+    let all: Vec<&ReferRecord> = records.iter().collect();
+    let mut by_relation: BTreeMap<&str, Vec<&ReferRecord>> = BTreeMap::new();
+    for r in records {
+        by_relation.entry(r.relation.as_str()).or_default().push(r);
+    }
+    let split = |f: &dyn Fn(&ReferRecord) -> bool| -> Vec<&ReferRecord> {
+        records.iter().filter(|r| f(r)).collect()
+    };
+    let mut millis: Vec<f64> = records.iter().map(|r| r.millis).collect();
+    millis.sort_by(f64::total_cmp);
+    let percentile = |p: f64| {
+        millis
+            .get(((millis.len() as f64 - 1.0) * p).round() as usize)
+            .copied()
+            .unwrap_or(0.0)
+    };
+    let total = group(&all);
+    let rows: Vec<(String, Group)> = [
+        ("**all**".to_owned(), group(&all)),
+        ("easy".to_owned(), group(&split(&|r| !r.hard))),
+        ("hard".to_owned(), group(&split(&|r| r.hard))),
+        (
+            "view-dependent".to_owned(),
+            group(&split(&|r| r.view_dependent)),
+        ),
+        (
+            "view-independent".to_owned(),
+            group(&split(&|r| !r.view_dependent)),
+        ),
+    ]
+    .into_iter()
+    .chain(
+        by_relation
+            .iter()
+            .map(|(relation, rs)| ((*relation).to_owned(), group(rs))),
+    )
+    .collect();
+    let json = serde_json::json!({
+        "selection_accuracy": total.selection_accuracy,
+        "topk_recall": total.topk_recall,
+        "targets_in_map": total.targets_in_map,
+        "accuracy_when_in_map": total.accuracy_when_in_map,
+        "acc_at_25": total.acc_at_25,
+        "acc_at_50": total.acc_at_50,
+        "query_p50_ms": percentile(0.5),
+        "query_p99_ms": percentile(0.99),
+        "queries": records.len(),
+        "groups": rows.iter().map(|(name, g)| serde_json::json!({"group": name, "scores": g})).collect::<Vec<_>>(),
+    });
+    std::fs::write(
+        out.join("summary.json"),
+        serde_json::to_string_pretty(&json)?,
+    )?;
+    let mut table = String::from(
+        "| expressions | queries | selection accuracy | top-K recall | targets in map | accuracy when in map | Acc@0.25 | Acc@0.5 |\n\
+         | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |\n",
+    );
+    for (name, g) in &rows {
+        table += &format!(
+            "| {name} | {} | {:.1}% | {:.1}% | {:.1}% | {:.1}% | {:.1}% | {:.1}% |\n",
+            g.queries,
+            100.0 * g.selection_accuracy,
+            100.0 * g.topk_recall,
+            100.0 * g.targets_in_map,
+            100.0 * g.accuracy_when_in_map,
+            100.0 * g.acc_at_25,
+            100.0 * g.acc_at_50,
+        );
+    }
+    std::fs::write(out.join("summary.md"), &table)?;
+    print!("{table}");
+    println!(
+        "query latency (parse to response, through the service handler): p50 {:.1} ms, p99 {:.1} ms over {} queries; wrote {}",
+        percentile(0.5),
+        percentile(0.99),
+        records.len(),
+        out.display()
+    );
+    Ok(())
+}

@@ -1,0 +1,199 @@
+//! Referring against ground truth: a scene's generated expressions asked through the `Refer`
+//! service's handler (CDR request in, CDR response out, exactly what a ROS 2 client gets) on the
+//! scene's final map; each answered instance is matched to the object its box overlaps most, and
+//! the answer is right when those objects are exactly the expression's targets.
+
+use std::sync::{Arc, Mutex};
+use std::time::Instant;
+
+use glam::DVec3;
+use groupforward_msgs::cdr;
+use groupforward_msgs::geometry_msgs::{Point, Pose, Quaternion};
+use groupforward_msgs::gf_msgs::{ReferRequest, ReferResponse};
+use groupforward_msgs::vision_msgs::BoundingBox3D;
+use groupforward_sim::referring::Expression;
+use serde::Serialize;
+
+use super::score::TruthObject;
+use crate::graph::SceneMap;
+use crate::group::semantics::Vocabulary;
+use crate::model::text::TextEncoder;
+use crate::node::services::{handle_refer, Shared};
+use crate::recon::boxes::OrientedBox;
+use crate::refer::ReferSection;
+
+/// An answer box farther than this from every object (and overlapping none) names no object.
+const MATCH_DISTANCE_M: f64 = 0.5;
+
+/// One expression, asked and scored.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ReferRecord {
+    pub scene: String,
+    pub expression: String,
+    pub relation: String,
+    pub view_dependent: bool,
+    /// ReferIt3D "hard": more than 2 distractors of the target's class.
+    pub hard: bool,
+    pub targets: Vec<u16>,
+    /// The objects the answered instances were matched to (0: none).
+    pub answered: Vec<u16>,
+    pub correct: bool,
+    /// Every target is among the retrieved candidates.
+    pub topk_hit: bool,
+    /// Every target has an instance in the map (matched the same way).
+    pub targets_in_map: bool,
+    /// Single-target expressions: the answer's box IoU with the target's (0 otherwise).
+    pub iou: f64,
+    pub millis: f64,
+    pub success: bool,
+    pub message: String,
+    pub reasoner_used: String,
+}
+
+pub fn oriented(b: &BoundingBox3D) -> OrientedBox {
+    let (p, q) = (&b.center.position, &b.center.orientation);
+    OrientedBox {
+        centre: DVec3::new(p.x, p.y, p.z),
+        size: DVec3::new(b.size.x, b.size.y, b.size.z),
+        yaw: 2.0 * q.z.atan2(q.w),
+    }
+}
+
+/// The object `b` names: the one it overlaps most, else the nearest within 0.5 m; 0 for none.
+pub fn matched_object(b: &OrientedBox, objects: &[TruthObject]) -> (u16, f64) {
+    let best = objects
+        .iter()
+        .map(|o| (o.id, b.iou(&o.bbox)))
+        .max_by(|a, c| a.1.total_cmp(&c.1));
+    if let Some((id, iou)) = best.filter(|b| b.1 > 0.0) {
+        return (id, iou);
+    }
+    objects
+        .iter()
+        .map(|o| (o.id, (o.bbox.centre - b.centre).length()))
+        .filter(|(_, d)| *d <= MATCH_DISTANCE_M)
+        .min_by(|a, c| a.1.total_cmp(&c.1))
+        .map_or((0, 0.0), |(id, _)| (id, 0.0))
+}
+
+/// The request a client would send for `expression` (its view, if view-dependent).
+pub fn request_for(expression: &Expression) -> ReferRequest {
+    let mut request = ReferRequest {
+        expression: expression.text.clone(),
+        ..ReferRequest::default()
+    };
+    if let Some(view) = expression.view {
+        let [x, y, z, w] = view.orientation;
+        request.use_view_pose = true;
+        request.view_pose = Pose {
+            position: Point {
+                x: view.position[0],
+                y: view.position[1],
+                z: view.position[2],
+            },
+            orientation: Quaternion { x, y, z, w },
+        };
+    }
+    request
+}
+
+/// Ask every expression of a scene on its final `map` and score the answers.
+pub fn ask_scene(
+    scene: &str,
+    map: SceneMap,
+    objects: &[TruthObject],
+    vocabulary: Option<Vocabulary>,
+    encoder: Option<Arc<Mutex<TextEncoder>>>,
+    section: &ReferSection,
+    expressions: &[Expression],
+) -> Vec<ReferRecord> {
+    let mut shared = Shared {
+        vocabulary,
+        text_encoder: encoder,
+        refer: section.clone(),
+        world_frame: "map".into(),
+        ..Shared::default()
+    };
+    shared.set_map(map);
+    // The map's instances as objects: which targets the map holds at all.
+    let in_map: Vec<u16> = shared
+        .instances
+        .iter()
+        .map(|i| {
+            let b = OrientedBox {
+                centre: DVec3::new(i.pose.position.x, i.pose.position.y, i.pose.position.z),
+                size: DVec3::new(i.size.x, i.size.y, i.size.z),
+                yaw: 2.0 * i.pose.orientation.z.atan2(i.pose.orientation.w),
+            };
+            matched_object(&b, objects).0
+        })
+        .collect();
+    let shared = Mutex::new(shared);
+    let box_of = |id: &str, shared: &Mutex<Shared>| -> Option<OrientedBox> {
+        let s = shared.lock().ok()?;
+        s.instances
+            .iter()
+            .find(|i| i.id == id)
+            .map(|i| OrientedBox {
+                centre: DVec3::new(i.pose.position.x, i.pose.position.y, i.pose.position.z),
+                size: DVec3::new(i.size.x, i.size.y, i.size.z),
+                yaw: 2.0 * i.pose.orientation.z.atan2(i.pose.orientation.w),
+            })
+    };
+    expressions
+        .iter()
+        .map(|e| {
+            let request = request_for(e);
+            let started = Instant::now();
+            let response: ReferResponse = cdr::encode(&request)
+                .map_err(|e| e.to_string())
+                .and_then(|bytes| handle_refer(&shared, &bytes))
+                .and_then(|bytes| cdr::decode(&bytes).map_err(|e| e.to_string()))
+                .unwrap_or_else(|message| ReferResponse {
+                    message,
+                    ..ReferResponse::default()
+                });
+            let millis = started.elapsed().as_secs_f64() * 1e3;
+            let matches: Vec<(u16, f64)> = response
+                .boxes
+                .iter()
+                .map(|b| matched_object(&oriented(b), objects))
+                .collect();
+            // A duplicate instance of a target names the same object: the answer is right, the
+            // duplicate is the map's fault and `eval map` counts it.
+            let mut answered: Vec<u16> = matches.iter().map(|m| m.0).collect();
+            answered.sort_unstable();
+            answered.dedup();
+            let candidates: Vec<u16> = response
+                .candidates
+                .iter()
+                .filter_map(|c| box_of(&c.id, &shared))
+                .map(|b| matched_object(&b, objects).0)
+                .collect();
+            let iou = match (&e.targets[..], &matches[..]) {
+                ([target], [(id, iou)]) if id == target => *iou,
+                _ => 0.0,
+            };
+            ReferRecord {
+                scene: scene.into(),
+                expression: e.text.clone(),
+                relation: serde_json::to_value(e.relation)
+                    .ok()
+                    .and_then(|v| v.as_str().map(str::to_owned))
+                    .unwrap_or_default(),
+                view_dependent: e.view_dependent,
+                hard: e.distractors > 2,
+                targets: e.targets.clone(),
+                correct: response.success && answered == e.targets,
+                answered,
+                topk_hit: e.targets.iter().all(|t| candidates.contains(t)),
+                targets_in_map: e.targets.iter().all(|t| in_map.contains(t)),
+                iou,
+                millis,
+                success: response.success,
+                message: response.message,
+                reasoner_used: response.reasoner_used,
+            }
+        })
+        .collect()
+}

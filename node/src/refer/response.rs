@@ -1,0 +1,236 @@
+//! An answer as the `Refer` service returns it: per chosen instance its pose and gravity-aligned
+//! box, its Gaussians as a PointCloud2 with an `instance_id` field, and its masks rendered into
+//! the snapshot's keyframes (and into the request's view, if one was given), cut by the map's
+//! rendered depth so occluded parts stay out.
+
+use groupforward_msgs::builtin_interfaces::Time;
+use groupforward_msgs::geometry_msgs::{Point, Pose, Quaternion, Vector3};
+use groupforward_msgs::gf_msgs::{Candidate, InstanceMasks, ReferResponse};
+use groupforward_msgs::sensor_msgs::{Image, PointCloud2, PointField};
+use groupforward_msgs::std_msgs::Header;
+use groupforward_msgs::vision_msgs::BoundingBox3D;
+
+use super::scene::ReferScene;
+use super::Answer;
+use crate::frame::Keyframe;
+use crate::recon::boxes::OrientedBox;
+use crate::recon::gaussians::Gaussians;
+use crate::recon::raster::{render, RasterSettings};
+
+/// Depth tolerance of the occlusion cut (metres).
+pub const MASK_DEPTH_TOLERANCE: f32 = 0.1;
+
+/// A box's centre and yaw as a pose.
+pub fn box_pose(b: &OrientedBox) -> Pose {
+    let half_yaw = b.yaw / 2.0;
+    Pose {
+        position: Point {
+            x: b.centre.x,
+            y: b.centre.y,
+            z: b.centre.z,
+        },
+        orientation: Quaternion {
+            x: 0.0,
+            y: 0.0,
+            z: half_yaw.sin(),
+            w: half_yaw.cos(),
+        },
+    }
+}
+
+pub fn bounding_box(b: &OrientedBox) -> BoundingBox3D {
+    BoundingBox3D {
+        center: box_pose(b),
+        size: Vector3 {
+            x: b.size.x,
+            y: b.size.y,
+            z: b.size.z,
+        },
+    }
+}
+
+/// Numeric instance id of `inst_000042` (42); 0 when the id has another form.
+pub fn numeric_id(id: &str) -> u32 {
+    id.rsplit('_')
+        .next()
+        .and_then(|n| n.parse().ok())
+        .unwrap_or(0)
+}
+
+/// Gaussians as a PointCloud2 in `frame_id`: x, y, z, rgb (packed as PCL does) and instance_id.
+pub fn instance_cloud(frame_id: &str, stamp: Time, instances: &[(u32, &Gaussians)]) -> PointCloud2 {
+    const STEP: u32 = 20;
+    let field = |name: &str, offset: u32, datatype: u8| PointField {
+        name: name.into(),
+        offset,
+        datatype,
+        count: 1,
+    };
+    let points: usize = instances.iter().map(|(_, g)| g.len()).sum();
+    let mut data = Vec::with_capacity(points * STEP as usize);
+    for (id, g) in instances {
+        for (m, c) in g.means.iter().zip(&g.colors) {
+            for v in [m.x, m.y, m.z] {
+                data.extend_from_slice(&v.to_le_bytes());
+            }
+            let byte = |v: f32| (v.clamp(0.0, 1.0) * 255.0).round() as u32;
+            let rgb = (byte(c.x) << 16) | (byte(c.y) << 8) | byte(c.z);
+            data.extend_from_slice(&rgb.to_le_bytes());
+            data.extend_from_slice(&id.to_le_bytes());
+        }
+    }
+    PointCloud2 {
+        header: Header {
+            stamp,
+            frame_id: frame_id.into(),
+        },
+        height: 1,
+        width: points as u32,
+        fields: vec![
+            field("x", 0, PointField::FLOAT32),
+            field("y", 4, PointField::FLOAT32),
+            field("z", 8, PointField::FLOAT32),
+            field("rgb", 12, PointField::FLOAT32),
+            field("instance_id", 16, PointField::UINT32),
+        ],
+        is_bigendian: false,
+        point_step: STEP,
+        row_step: STEP * points as u32,
+        data,
+        is_dense: true,
+    }
+}
+
+/// The label image of `instances` in `keyframe`: pixel = 1 + the index of the instance seen
+/// there, 0 for none. `scene_depth` (the whole map's rendered depth there, 0 = nothing) cuts
+/// away what other instances hide.
+pub fn label_image(instances: &[&Gaussians], keyframe: &Keyframe, scene_depth: &[f32]) -> Vec<u16> {
+    let (w, h) = (
+        keyframe.camera.width as usize,
+        keyframe.camera.height as usize,
+    );
+    let mut labels = vec![0u16; w * h];
+    let mut nearest = vec![f32::INFINITY; w * h];
+    let camera_from_world = keyframe.world_from_camera.inverse();
+    for (k, g) in instances.iter().enumerate() {
+        let mut bare = (*g).clone();
+        bare.embedding_dim = 0;
+        bare.embeddings.clear();
+        bare.extra_dim = 0;
+        bare.extra.clear();
+        let Ok(r) = render(
+            &bare,
+            &[],
+            0,
+            &keyframe.camera,
+            &camera_from_world,
+            &RasterSettings::default(),
+        ) else {
+            continue;
+        };
+        for p in 0..w * h {
+            let d = r.depth[p];
+            let reference = scene_depth.get(p).copied().unwrap_or(0.0);
+            let unoccluded = reference <= 0.0 || d <= reference + MASK_DEPTH_TOLERANCE;
+            if r.alpha[p] > 0.5 && unoccluded && d < nearest[p] {
+                nearest[p] = d;
+                labels[p] = (k + 1) as u16;
+            }
+        }
+    }
+    labels
+}
+
+fn mono16(header: Header, w: u32, h: u32, labels: &[u16]) -> Image {
+    Image {
+        header,
+        height: h,
+        width: w,
+        encoding: "mono16".into(),
+        is_bigendian: 0,
+        step: w * 2,
+        data: labels.iter().flat_map(|v| v.to_le_bytes()).collect(),
+    }
+}
+
+/// The `Refer` response for `answer` on `scene`; `gaussians` are the chosen instances' (in the
+/// answer's order, from the live map), `novel` an extra view to render masks into.
+pub fn response(
+    answer: &Answer,
+    scene: &ReferScene,
+    gaussians: &[Gaussians],
+    world_frame: &str,
+    novel: Option<&Keyframe>,
+) -> ReferResponse {
+    let chosen: Vec<&super::ReferNode> = answer
+        .chosen
+        .iter()
+        .map(|c| &scene.nodes[c.index])
+        .collect();
+    let ids: Vec<String> = chosen.iter().map(|n| n.id.clone()).collect();
+    let refs: Vec<&Gaussians> = gaussians.iter().collect();
+    let stamp = scene
+        .keyframes
+        .first()
+        .map_or(Time::default(), |k| Time::from_nanos(k.stamp_nanos));
+    let cloud_items: Vec<(u32, &Gaussians)> = chosen
+        .iter()
+        .zip(gaussians)
+        .map(|(n, g)| (numeric_id(&n.id), g))
+        .collect();
+    let mut view_masks: Vec<InstanceMasks> = scene
+        .keyframes
+        .iter()
+        .zip(&scene.depths)
+        .map(|(kf, depth)| (kf, label_image(&refs, kf, depth)))
+        .chain(novel.map(|kf| (kf, label_image(&refs, kf, &[]))))
+        .map(|(kf, labels)| InstanceMasks {
+            header: Header {
+                stamp: Time::from_nanos(kf.stamp_nanos),
+                frame_id: String::new(),
+            },
+            camera: String::new(),
+            mask: mono16(
+                Header {
+                    stamp: Time::from_nanos(kf.stamp_nanos),
+                    frame_id: String::new(),
+                },
+                kf.camera.width,
+                kf.camera.height,
+                &labels,
+            ),
+            instance_ids: ids.clone(),
+        })
+        .collect();
+    // A view where none of the answer is seen carries nothing.
+    view_masks.retain(|m| m.mask.data.iter().any(|b| *b != 0));
+    let message = if answer.chosen.is_empty() {
+        "no instance fits".to_owned()
+    } else {
+        format!("{} instance(s)", answer.chosen.len())
+    };
+    ReferResponse {
+        success: !answer.chosen.is_empty(),
+        message,
+        instance_ids: ids,
+        confidences: answer.chosen.iter().map(|c| c.confidence).collect(),
+        poses: chosen.iter().map(|n| box_pose(&n.bbox)).collect(),
+        boxes: chosen.iter().map(|n| bounding_box(&n.bbox)).collect(),
+        target_cloud: instance_cloud(world_frame, stamp, &cloud_items),
+        view_masks,
+        candidates: answer
+            .candidates
+            .iter()
+            .map(|c| Candidate {
+                id: c.id.clone(),
+                label: c.label.clone(),
+                score: c.score,
+                semantic_score: c.semantic,
+                geometric_score: c.geometric,
+                visibility_score: c.visibility,
+            })
+            .collect(),
+        reasoner_used: answer.reasoner_used.clone(),
+        trace: answer.trace.clone(),
+    }
+}
