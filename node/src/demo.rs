@@ -441,20 +441,13 @@ fn score_listed(
     let objects = crate::eval::run::truth_objects(&sim.scene, |_| 1);
     let listed: Vec<ListedInstance> = instances
         .iter()
-        .map(|i| {
-            let (p, q, size) = (&i.pose.position, &i.pose.orientation, &i.size);
-            ListedInstance {
-                id: i.id.clone(),
-                name: i
-                    .hypotheses
-                    .first()
-                    .map_or(String::new(), |h| h.class_id.clone()),
-                bbox: crate::recon::boxes::OrientedBox {
-                    centre: glam::DVec3::new(p.x, p.y, p.z),
-                    size: glam::DVec3::new(size.x, size.y, size.z),
-                    yaw: 2.0 * q.z.atan2(q.w),
-                },
-            }
+        .map(|i| ListedInstance {
+            id: i.id.clone(),
+            name: i
+                .hypotheses
+                .first()
+                .map_or(String::new(), |h| h.class_id.clone()),
+            bbox: crate::eval::refer::instance_box(i),
         })
         .collect();
     let room = scene.room.size;

@@ -85,8 +85,10 @@ fn the_demo_replays_a_sim_recorded_bag_into_the_node() {
             .instance_ids
             .iter()
             .all(|id| r.candidates.iter().any(|c| &c.id == id)));
-        assert!(r.candidates.iter().all(|c| c.score.is_finite()
-            && (0.0..=1.0).contains(&c.semantic_score)));
+        assert!(r
+            .candidates
+            .iter()
+            .all(|c| c.score.is_finite() && (0.0..=1.0).contains(&c.semantic_score)));
     }
     assert!(answered >= 3, "{answered} answers");
 }

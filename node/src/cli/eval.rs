@@ -87,17 +87,7 @@ pub fn run(command: EvalCommand) -> Result<()> {
             effects,
             out,
         } => {
-            let mut files = if scene.is_empty() {
-                split_scenes(&split, first_index, scenes)?
-            } else {
-                scene.iter().map(|s| load_scene(s)).collect::<Result<_>>()?
-            };
-            if let Some(name) = &effects {
-                let preset = Preset::parse(name).map_err(anyhow::Error::msg)?;
-                for file in &mut files {
-                    file.apply_preset(preset);
-                }
-            }
+            let files = scene_files(&split, first_index, scenes, &scene, effects.as_deref())?;
             eval_map(&files, model, effects.as_deref(), &out)
         }
         EvalCommand::Refer {
@@ -109,20 +99,33 @@ pub fn run(command: EvalCommand) -> Result<()> {
             effects,
             out,
         } => {
-            let mut files = if scene.is_empty() {
-                split_scenes(&split, first_index, scenes)?
-            } else {
-                scene.iter().map(|s| load_scene(s)).collect::<Result<_>>()?
-            };
-            if let Some(name) = &effects {
-                let preset = Preset::parse(name).map_err(anyhow::Error::msg)?;
-                for file in &mut files {
-                    file.apply_preset(preset);
-                }
-            }
+            let files = scene_files(&split, first_index, scenes, &scene, effects.as_deref())?;
             crate::eval_refer::eval_refer(&files, expressions.as_deref(), &out)
         }
     }
+}
+
+/// The scenes to replay: `specs` (files or `<split>:<index>`) if any, else scenes
+/// `first_index..first_index + count` of `split`; with `effects` as every scene's preset.
+fn scene_files(
+    split: &str,
+    first_index: u64,
+    count: u64,
+    specs: &[String],
+    effects: Option<&str>,
+) -> Result<Vec<SceneFile>> {
+    let mut files = if specs.is_empty() {
+        split_scenes(split, first_index, count)?
+    } else {
+        specs.iter().map(|s| load_scene(s)).collect::<Result<_>>()?
+    };
+    if let Some(name) = effects {
+        let preset = Preset::parse(name).map_err(anyhow::Error::msg)?;
+        for file in &mut files {
+            file.apply_preset(preset);
+        }
+    }
+    Ok(files)
 }
 
 /// Scenes `first_index..first_index + count` of a procedural split.

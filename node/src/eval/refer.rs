@@ -8,8 +8,8 @@ use std::time::Instant;
 
 use glam::DVec3;
 use groupforward_msgs::cdr;
-use groupforward_msgs::geometry_msgs::{Point, Pose, Quaternion};
-use groupforward_msgs::gf_msgs::{ReferRequest, ReferResponse};
+use groupforward_msgs::geometry_msgs::{Point, Pose, Quaternion, Vector3};
+use groupforward_msgs::gf_msgs::{Instance, ReferRequest, ReferResponse};
 use groupforward_msgs::vision_msgs::BoundingBox3D;
 use groupforward_sim::referring::Expression;
 use serde::Serialize;
@@ -50,13 +50,23 @@ pub struct ReferRecord {
     pub reasoner_used: String,
 }
 
-pub fn oriented(b: &BoundingBox3D) -> OrientedBox {
-    let (p, q) = (&b.center.position, &b.center.orientation);
+/// A gravity-aligned box from its pose (centre, yaw about z) and size.
+pub fn box_from_pose(pose: &Pose, size: &Vector3) -> OrientedBox {
+    let (p, q) = (&pose.position, &pose.orientation);
     OrientedBox {
         centre: DVec3::new(p.x, p.y, p.z),
-        size: DVec3::new(b.size.x, b.size.y, b.size.z),
+        size: DVec3::new(size.x, size.y, size.z),
         yaw: 2.0 * q.z.atan2(q.w),
     }
+}
+
+pub fn oriented(b: &BoundingBox3D) -> OrientedBox {
+    box_from_pose(&b.center, &b.size)
+}
+
+/// A listed instance's box.
+pub fn instance_box(i: &Instance) -> OrientedBox {
+    box_from_pose(&i.pose, &i.size)
 }
 
 /// The object `b` names: the one it overlaps most, else the nearest within 0.5 m; 0 for none.
@@ -119,14 +129,7 @@ pub fn ask_scene(
     let in_map: Vec<u16> = shared
         .instances
         .iter()
-        .map(|i| {
-            let b = OrientedBox {
-                centre: DVec3::new(i.pose.position.x, i.pose.position.y, i.pose.position.z),
-                size: DVec3::new(i.size.x, i.size.y, i.size.z),
-                yaw: 2.0 * i.pose.orientation.z.atan2(i.pose.orientation.w),
-            };
-            matched_object(&b, objects).0
-        })
+        .map(|i| matched_object(&instance_box(i), objects).0)
         .collect();
     let shared = Mutex::new(shared);
     let box_of = |id: &str, shared: &Mutex<Shared>| -> Option<OrientedBox> {
