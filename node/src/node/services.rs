@@ -269,11 +269,14 @@ pub fn refer_request(shared: &Mutex<Shared>, request: &ReferRequest) -> ReferRes
     let Some(encoder) = encoder else {
         return failure("the text encoder is not loaded (yet): no phrase can be matched".into());
     };
-    let wants_vlm = request.reasoner == "vlm";
-    if !matches!(request.reasoner.as_str(), "" | "builtin" | "vlm") {
+    let reasoner = if request.reasoner.is_empty() {
+        section.reasoner.as_str()
+    } else {
+        request.reasoner.as_str()
+    };
+    if !matches!(reasoner, "builtin" | "vlm") {
         return failure(format!(
-            "unknown reasoner {:?}; use \"builtin\" or \"vlm\"",
-            request.reasoner
+            "unknown reasoner {reasoner:?}; use \"builtin\" or \"vlm\""
         ));
     }
     let answered = {
@@ -295,12 +298,37 @@ pub fn refer_request(shared: &Mutex<Shared>, request: &ReferRequest) -> ReferRes
         Ok(answer) => answer,
         Err(e) => return failure(e.to_string()),
     };
-    if wants_vlm {
-        answer.reasoner_used = "fallback".into();
-        answer.trace = format!(
-            "no VLM is configured: the built-in reasoner answered; {}",
-            answer.trace
-        );
+    if reasoner == "vlm" || !section.evidence_dir.is_empty() {
+        // The evidence is rendered from the whole map: copy it out, render without the lock.
+        let all: Vec<(String, crate::recon::gaussians::Gaussians)> = match shared.lock() {
+            Ok(s) => s
+                .map
+                .instances
+                .iter()
+                .map(|i| (i.id.clone(), i.gaussians.clone()))
+                .collect(),
+            Err(e) => return failure(e.to_string()),
+        };
+        let images = if reasoner == "vlm" {
+            section.vlm.max_images
+        } else {
+            1 + section.top_k
+        };
+        let evidence = refer::evidence::build(&scene, &answer, &all, images);
+        if reasoner == "vlm" {
+            let client = refer::vlm::VlmClient::new(&section.vlm);
+            answer = refer::with_vlm(answer, client.as_ref().map_err(Clone::clone), &evidence);
+        }
+        if !section.evidence_dir.is_empty() {
+            let stem = evidence_stem(&request.expression);
+            if let Err(e) = refer::evidence::write(
+                std::path::Path::new(&section.evidence_dir),
+                &stem,
+                &evidence,
+            ) {
+                tracing::warn!("evidence not written to {}: {e}", section.evidence_dir);
+            }
+        }
     }
     let gaussians: Vec<_> = match shared.lock() {
         Ok(s) => answer
@@ -329,6 +357,21 @@ pub fn refer_request(shared: &Mutex<Shared>, request: &ReferRequest) -> ReferRes
             ),
         });
     refer::response::response(&answer, &scene, &gaussians, &world_frame, novel.as_ref())
+}
+
+/// A file stem for an expression's evidence: its words, lower case, joined by `_`.
+fn evidence_stem(expression: &str) -> String {
+    let words: Vec<String> = expression
+        .split(|c: char| !c.is_alphanumeric())
+        .filter(|w| !w.is_empty())
+        .take(12)
+        .map(str::to_lowercase)
+        .collect();
+    if words.is_empty() {
+        "query".into()
+    } else {
+        words.join("_")
+    }
 }
 
 /// The `Refer` service: CDR in, CDR out.

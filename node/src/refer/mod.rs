@@ -8,6 +8,7 @@
 //! - [`reasoner`]: the built-in graph reasoner over the candidates.
 
 pub mod concepts;
+pub mod evidence;
 pub mod parse;
 pub mod reasoner;
 pub mod response;
@@ -15,6 +16,7 @@ pub mod retrieve;
 pub mod scene;
 #[cfg(test)]
 mod tests;
+pub mod vlm;
 
 use groupforward_sim::referring::ViewPose;
 use serde::{Deserialize, Serialize};
@@ -33,6 +35,12 @@ pub struct ReferSection {
     pub top_k: usize,
     /// τ of the softmax that spreads a concept phrase over the vocabulary (text cosines).
     pub concept_temperature: f32,
+    /// The reasoner a request with none named gets: `builtin` or `vlm`.
+    pub reasoner: String,
+    /// The VLM behind an OpenAI-compatible server.
+    pub vlm: vlm::VlmSection,
+    /// Write each answer's evidence bundle (PNG + JSON) here ("" = not written).
+    pub evidence_dir: String,
 }
 
 impl Default for ReferSection {
@@ -40,6 +48,9 @@ impl Default for ReferSection {
         Self {
             top_k: DEFAULT_TOP_K,
             concept_temperature: 0.05,
+            reasoner: "builtin".into(),
+            vlm: vlm::VlmSection::default(),
+            evidence_dir: String::new(),
         }
     }
 }
@@ -82,6 +93,8 @@ pub struct Request {
 /// One candidate as the answer reports it.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct CandidateReport {
+    /// Index into the snapshot's nodes.
+    pub index: usize,
     pub id: String,
     pub label: String,
     pub score: f32,
@@ -173,6 +186,7 @@ pub fn answer(
             .map(|c| {
                 let node = &scene.nodes[c.index];
                 CandidateReport {
+                    index: c.index,
                     id: node.id.clone(),
                     label: node.label.clone(),
                     score: c.score,
@@ -188,4 +202,36 @@ pub fn answer(
         view: query.view_dependent().then_some(view).flatten(),
         query,
     })
+}
+
+/// Let the VLM decide among `answer`'s candidates from `evidence`; on any failure the built-in
+/// reasoner's choice stands and the answer says why (`reasoner_used: "fallback"`).
+pub fn with_vlm(
+    mut answer: Answer,
+    client: Result<&vlm::VlmClient, vlm::VlmError>,
+    evidence: &evidence::Evidence,
+) -> Answer {
+    let ids: Vec<String> = answer.candidates.iter().map(|c| c.id.clone()).collect();
+    let chosen = client
+        .and_then(|client| client.choose(&answer.query.text, answer.query.count, evidence, &ids));
+    match chosen {
+        Ok(choice) => {
+            answer.chosen = choice
+                .ids
+                .iter()
+                .filter_map(|id| answer.candidates.iter().find(|c| &c.id == id))
+                .map(|c| reasoner::Choice {
+                    index: c.index,
+                    confidence: c.score,
+                })
+                .collect();
+            answer.reasoner_used = "vlm".into();
+            answer.trace = format!("VLM: {}; built-in: {}", choice.reason, answer.trace);
+        }
+        Err(e) => {
+            answer.reasoner_used = "fallback".into();
+            answer.trace = format!("{e}: the built-in reasoner answered; {}", answer.trace);
+        }
+    }
+    answer
 }

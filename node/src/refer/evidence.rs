@@ -1,0 +1,340 @@
+//! The evidence bundle a reasoner sees (DESIGN §5.7): per candidate the structured node as JSON
+//! (names, centre, extent, volume, colour, visibility, its nearest neighbours), and images
+//! rendered from the map with the rasterizer at the newest keyframe: a global overview with the
+//! candidates' outlines numbered, and one image per candidate with its mask highlighted. Written
+//! as PNG + JSON by `--evidence DIR` so a person can look at what the reasoner saw.
+
+use std::path::Path;
+
+use glam::DVec2;
+use groupforward_sim::referring::color_name;
+use serde_json::json;
+
+use super::scene::ReferScene;
+use super::Answer;
+use crate::frame::{Keyframe, RgbImage};
+use crate::model::reconstruction::resized_camera;
+use crate::recon::gaussians::Gaussians;
+use crate::recon::raster::{render, RasterSettings};
+
+/// Evidence images are rendered this many times the keyframe's (model) resolution.
+pub const EVIDENCE_SCALE: usize = 3;
+
+/// Outline colours of candidates 1, 2, ... (cycled).
+const PALETTE: [[u8; 3]; 8] = [
+    [230, 25, 75],
+    [60, 180, 75],
+    [255, 225, 25],
+    [0, 130, 200],
+    [245, 130, 48],
+    [145, 30, 180],
+    [70, 240, 240],
+    [240, 50, 230],
+];
+
+/// What a reasoner is shown.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Evidence {
+    pub json: serde_json::Value,
+    /// (name, image): `overview` first, then `candidate_<n>`.
+    pub images: Vec<(String, RgbImage)>,
+}
+
+/// The structured part: the expression, its parse, and per candidate (numbered from 1 as in
+/// the images) its node and nearest neighbours.
+pub fn structured(scene: &ReferScene, answer: &Answer) -> serde_json::Value {
+    let candidates: Vec<serde_json::Value> = answer
+        .candidates
+        .iter()
+        .enumerate()
+        .map(|(k, c)| {
+            let node = &scene.nodes[c.index];
+            let mut names: Vec<(usize, f32)> = node.names.iter().copied().enumerate().collect();
+            names.sort_by(|a, b| b.1.total_cmp(&a.1));
+            let centre = node.center();
+            let mut neighbours: Vec<(f64, &super::ReferNode)> = scene
+                .nodes
+                .iter()
+                .filter(|n| n.id != node.id)
+                .map(|n| ((n.center() - centre).length(), n))
+                .collect();
+            neighbours.sort_by(|a, b| a.0.total_cmp(&b.0));
+            let size = node.hi - node.lo;
+            json!({
+                "number": k + 1,
+                "id": node.id,
+                "names": names.iter().take(3).map(|(i, p)| json!({"name": scene.phrases[*i], "p": p})).collect::<Vec<_>>(),
+                "centre_m": [centre.x, centre.y, centre.z],
+                "size_m": [size.x, size.y, size.z],
+                "volume_m3": size.x * size.y * size.z,
+                "colour": color_name(node.color),
+                "visibility": node.visibility,
+                "scores": {"semantic": c.semantic, "geometric": c.geometric, "visibility": c.visibility, "combined": c.score},
+                "neighbours": neighbours.iter().take(3).map(|(d, n)| json!({
+                    "id": n.id, "name": n.label, "distance_m": d,
+                    "height_difference_m": n.center().z - centre.z})).collect::<Vec<_>>(),
+            })
+        })
+        .collect();
+    json!({
+        "expression": answer.query.text,
+        "parse": answer.query,
+        "candidates": candidates,
+        "builtin_choice": answer.chosen.iter().map(|c| scene.nodes[c.index].id.clone()).collect::<Vec<_>>(),
+    })
+}
+
+/// The bundle: the structured part, and images rendered from `gaussians` (the map's instances
+/// by id, all of them, for the overview) at the newest keyframe; at most `max_images` images.
+pub fn build(
+    scene: &ReferScene,
+    answer: &Answer,
+    gaussians: &[(String, Gaussians)],
+    max_images: usize,
+) -> Evidence {
+    let json = structured(scene, answer);
+    let images = scene
+        .keyframes
+        .first()
+        .map(|kf| images(scene, answer, gaussians, kf, max_images))
+        .unwrap_or_default();
+    Evidence { json, images }
+}
+
+fn images(
+    scene: &ReferScene,
+    answer: &Answer,
+    gaussians: &[(String, Gaussians)],
+    keyframe: &Keyframe,
+    max_images: usize,
+) -> Vec<(String, RgbImage)> {
+    if max_images == 0 {
+        return Vec::new();
+    }
+    let camera = resized_camera(
+        &keyframe.camera,
+        keyframe.camera.width as usize * EVIDENCE_SCALE,
+        keyframe.camera.height as usize * EVIDENCE_SCALE,
+    );
+    let view = Keyframe {
+        camera,
+        ..keyframe.clone()
+    };
+    // One render of the whole map with an owner channel: colour, and which instance is in front.
+    let mut all = Gaussians::with_dims(0, 0);
+    let mut features = Vec::new();
+    let candidate_of = |id: &str| {
+        answer
+            .candidates
+            .iter()
+            .position(|c| scene.nodes[c.index].id == id)
+    };
+    for (id, g) in gaussians {
+        let owner = candidate_of(id).map_or(0.0, |k| (k + 1) as f32);
+        let mut bare = g.clone();
+        bare.embedding_dim = 0;
+        bare.embeddings.clear();
+        bare.extra_dim = 0;
+        bare.extra.clear();
+        all.extend(&bare);
+        for c in &g.colors {
+            features.extend_from_slice(&[c.x, c.y, c.z, owner]);
+        }
+    }
+    let Ok(r) = render(
+        &all,
+        &features,
+        4,
+        &view.camera,
+        &view.world_from_camera.inverse(),
+        &RasterSettings::default(),
+    ) else {
+        return Vec::new();
+    };
+    let (w, h) = (r.width, r.height);
+    let pixels = w * h;
+    let mut base = vec![0u8; pixels * 3];
+    let mut owner = vec![0usize; pixels];
+    for p in 0..pixels {
+        let a = r.alpha[p].max(1e-6);
+        let f = &r.features[p * 4..p * 4 + 4];
+        for c in 0..3 {
+            base[p * 3 + c] = ((f[c] / a.max(1.0)).clamp(0.0, 1.0) * 255.0) as u8;
+        }
+        // The owner channel is a blend at edges: round to the nearest candidate number.
+        owner[p] = if r.alpha[p] > 0.5 {
+            (f[3] / a).round().max(0.0) as usize
+        } else {
+            0
+        };
+    }
+    let mut overview = RgbImage {
+        width: w as u32,
+        height: h as u32,
+        data: base.clone(),
+    };
+    for (k, c) in answer.candidates.iter().enumerate() {
+        let node = &scene.nodes[c.index];
+        if let Some((lo, hi)) = projected_box(node, &view) {
+            let colour = PALETTE[k % PALETTE.len()];
+            draw_rect(&mut overview, lo, hi, colour);
+            draw_number(
+                &mut overview,
+                lo.x as i64 + 2,
+                lo.y as i64 + 2,
+                k + 1,
+                colour,
+            );
+        }
+    }
+    let mut out = vec![("overview".to_owned(), overview)];
+    for (k, _) in answer.candidates.iter().enumerate() {
+        if out.len() >= max_images {
+            break;
+        }
+        // The candidate's visible pixels tinted, the rest dimmed.
+        let mut data = base.clone();
+        for p in 0..pixels {
+            let mine = owner[p] == k + 1;
+            for c in 0..3 {
+                let v = f32::from(data[p * 3 + c]);
+                let tint = f32::from(PALETTE[k % PALETTE.len()][c]);
+                data[p * 3 + c] = if mine {
+                    (0.4 * v + 0.6 * tint) as u8
+                } else {
+                    (0.35 * v) as u8
+                };
+            }
+        }
+        out.push((
+            format!("candidate_{}", k + 1),
+            RgbImage {
+                width: w as u32,
+                height: h as u32,
+                data,
+            },
+        ));
+    }
+    out.truncate(max_images);
+    out
+}
+
+/// The image rectangle of a node's box corners in `view` (None: behind the camera or outside).
+fn projected_box(node: &super::ReferNode, view: &Keyframe) -> Option<(DVec2, DVec2)> {
+    let camera_from_world = view.world_from_camera.inverse();
+    let (mut lo, mut hi) = (DVec2::splat(f64::INFINITY), DVec2::splat(f64::NEG_INFINITY));
+    for i in 0..8 {
+        let corner = glam::DVec3::new(
+            if i & 1 == 0 { node.lo.x } else { node.hi.x },
+            if i & 2 == 0 { node.lo.y } else { node.hi.y },
+            if i & 4 == 0 { node.lo.z } else { node.hi.z },
+        );
+        let p = view
+            .camera
+            .project(camera_from_world.transform_point(corner))?;
+        lo = lo.min(p);
+        hi = hi.max(p);
+    }
+    let (w, h) = (f64::from(view.camera.width), f64::from(view.camera.height));
+    let lo = lo.max(DVec2::ZERO);
+    let hi = hi.min(DVec2::new(w - 1.0, h - 1.0));
+    (lo.x < hi.x && lo.y < hi.y).then_some((lo, hi))
+}
+
+fn put(image: &mut RgbImage, x: i64, y: i64, colour: [u8; 3]) {
+    if x < 0 || y < 0 || x >= i64::from(image.width) || y >= i64::from(image.height) {
+        return;
+    }
+    let i = (y as usize * image.width as usize + x as usize) * 3;
+    image.data[i..i + 3].copy_from_slice(&colour);
+}
+
+fn draw_rect(image: &mut RgbImage, lo: DVec2, hi: DVec2, colour: [u8; 3]) {
+    let (x0, y0, x1, y1) = (lo.x as i64, lo.y as i64, hi.x as i64, hi.y as i64);
+    for t in 0..2 {
+        for x in x0..=x1 {
+            put(image, x, y0 + t, colour);
+            put(image, x, y1 - t, colour);
+        }
+        for y in y0..=y1 {
+            put(image, x0 + t, y, colour);
+            put(image, x1 - t, y, colour);
+        }
+    }
+}
+
+/// Digits 0-9 as 3 × 5 bitmaps (rows top down, 3 bits each).
+const DIGITS: [[u8; 5]; 10] = [
+    [7, 5, 5, 5, 7],
+    [2, 6, 2, 2, 7],
+    [7, 1, 7, 4, 7],
+    [7, 1, 7, 1, 7],
+    [5, 5, 7, 1, 1],
+    [7, 4, 7, 1, 7],
+    [7, 4, 7, 5, 7],
+    [7, 1, 1, 1, 1],
+    [7, 5, 7, 5, 7],
+    [7, 5, 7, 1, 7],
+];
+
+/// `number` at (x, y), each font pixel a 3 × 3 block on a black plate.
+fn draw_number(image: &mut RgbImage, x: i64, y: i64, number: usize, colour: [u8; 3]) {
+    let digits: Vec<usize> = number
+        .to_string()
+        .bytes()
+        .map(|b| usize::from(b - b'0'))
+        .collect();
+    let scale = 3;
+    let width = digits.len() as i64 * 4 * scale + scale;
+    for dy in 0..7 * scale {
+        for dx in 0..width {
+            put(image, x + dx, y + dy, [0, 0, 0]);
+        }
+    }
+    for (k, d) in digits.iter().enumerate() {
+        for (row, bits) in DIGITS[*d].iter().enumerate() {
+            for col in 0..3 {
+                if bits & (4 >> col) != 0 {
+                    for sy in 0..scale {
+                        for sx in 0..scale {
+                            put(
+                                image,
+                                x + scale + (k as i64 * 4 + col) * scale + sx,
+                                y + scale + row as i64 * scale + sy,
+                                colour,
+                            );
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// PNG bytes of an image.
+pub fn png(image: &RgbImage) -> Result<Vec<u8>, String> {
+    let mut out = Vec::new();
+    image::ImageEncoder::write_image(
+        image::codecs::png::PngEncoder::new(&mut out),
+        &image.data,
+        image.width,
+        image.height,
+        image::ExtendedColorType::Rgb8,
+    )
+    .map_err(|e| e.to_string())?;
+    Ok(out)
+}
+
+/// Write `evidence` to `dir` as `evidence.json` and one PNG per image, named `<stem>_<name>.png`.
+pub fn write(dir: &Path, stem: &str, evidence: &Evidence) -> std::io::Result<()> {
+    std::fs::create_dir_all(dir)?;
+    std::fs::write(
+        dir.join(format!("{stem}.json")),
+        serde_json::to_string_pretty(&evidence.json).unwrap_or_default(),
+    )?;
+    for (name, image) in &evidence.images {
+        let bytes = png(image).map_err(std::io::Error::other)?;
+        std::fs::write(dir.join(format!("{stem}_{name}.png")), bytes)?;
+    }
+    Ok(())
+}
