@@ -137,6 +137,8 @@ pub struct DemoReport {
     /// A sample of the scene's generated referring expressions (one per relation type), asked
     /// through the `Refer` service.
     pub answers: Vec<DemoAnswer>,
+    /// Where the answers' evidence bundles were written.
+    pub evidence_dir: std::path::PathBuf,
     /// Open-vocabulary lookups, or why the text encoder could not run.
     pub vocabulary: std::result::Result<Vec<VocabularyMatch>, String>,
     /// The listed instances against the scene's objects, with `eval map`'s yardstick.
@@ -230,6 +232,11 @@ pub fn run_demo(options: &DemoOptions) -> Result<DemoReport> {
     config.models = crate::model::ModelsSection::shipped_in(
         &std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../models"),
     );
+    // Every answer's evidence bundle (PNG + JSON) lands here for a person to look at.
+    let evidence_dir =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../target/demo/evidence");
+    let _ = std::fs::remove_dir_all(&evidence_dir);
+    config.refer.evidence_dir = evidence_dir.display().to_string();
     let embedded = ZenohSection {
         connect: Vec::new(),
         ..ZenohSection::default()
@@ -423,6 +430,7 @@ pub fn run_demo(options: &DemoOptions) -> Result<DemoReport> {
         instances,
         objects,
         answers,
+        evidence_dir,
         vocabulary: match_vocabulary(DEMO_QUERIES),
         map_score,
         elapsed: started.elapsed(),

@@ -50,6 +50,18 @@ pub enum BenchCommand {
         #[arg(long, default_value = "target/bench/graph")]
         out: PathBuf,
     },
+    /// Referring query latency through the `Refer` service handler against maps of growing
+    /// size; writes `<out>.csv`, `<out>.md` and `<out>.svg`.
+    Refer {
+        /// Instances in the map, comma separated.
+        #[arg(long, value_delimiter = ',', default_values_t = vec![25, 50, 100, 200, 400])]
+        instances: Vec<usize>,
+        /// Timed rounds over the expressions (after one cold round).
+        #[arg(long, default_value_t = 5)]
+        rounds: usize,
+        #[arg(long, default_value = "target/bench/refer")]
+        out: PathBuf,
+    },
     /// The map against random depth dropout: `eval map` on the same scenes with each level's
     /// `dropout:<p>` effect (0 = clean); writes `<out>.csv`, `<out>.md` and `<out>.svg`.
     Dropout {
@@ -186,7 +198,7 @@ fn percent_chart(
 }
 
 /// A cube of Gaussians (`side`³ on a 4 cm grid) centred at `center`.
-fn cube(center: glam::Vec3, side: usize) -> groupforward::recon::gaussians::Gaussians {
+pub(crate) fn cube(center: glam::Vec3, side: usize) -> groupforward::recon::gaussians::Gaussians {
     let mut g = groupforward::recon::gaussians::Gaussians::with_dims(0, 0);
     let half = side as f32 * 0.02;
     for i in 0..side {
@@ -208,12 +220,32 @@ fn cube(center: glam::Vec3, side: usize) -> groupforward::recon::gaussians::Gaus
     g
 }
 
-/// Fusion of one window and a scene-graph update against maps of `sizes` instances.
-fn graph_bench(sizes: &[usize], window: usize, out: &Path) -> Result<()> {
-    use groupforward::frame::{Keyframe, WindowInstance, WindowView};
-    use groupforward::graph::{FusionParams, SceneMap};
+/// Four 128 × 96 keyframes looking along +y over the benchmarks' instance grid (1 m pitch, 25 a
+/// row), with far depth (every instance counts as seen).
+pub(crate) fn bench_views() -> Result<Vec<groupforward::frame::WindowView>> {
+    use groupforward::frame::{Keyframe, WindowView};
     use groupforward::recon::camera::Camera;
     use groupforward::recon::Rigid;
+    let camera = Camera::from_fov(128, 96, 1.5)?;
+    Ok((0..4)
+        .map(|k| WindowView {
+            keyframe: Keyframe {
+                stamp_nanos: k as i64,
+                camera,
+                world_from_camera: Rigid::new(
+                    glam::DQuat::from_rotation_x(-std::f64::consts::FRAC_PI_2),
+                    glam::DVec3::new(12.0, -5.0, 1.0 + k as f64 * 0.01),
+                ),
+            },
+            depth: vec![100.0; 128 * 96],
+        })
+        .collect())
+}
+
+/// Fusion of one window and a scene-graph update against maps of `sizes` instances.
+fn graph_bench(sizes: &[usize], window: usize, out: &Path) -> Result<()> {
+    use groupforward::frame::WindowInstance;
+    use groupforward::graph::{FusionParams, SceneMap};
     if let Some(parent) = out.parent() {
         std::fs::create_dir_all(parent)?;
     }
@@ -224,15 +256,7 @@ fn graph_bench(sizes: &[usize], window: usize, out: &Path) -> Result<()> {
             .map(|c| if c == k % 16 { 1.0 } else { 0.0 })
             .collect()
     };
-    let camera = Camera::from_fov(128, 96, 1.5)?;
-    let keyframe = |k: usize| Keyframe {
-        stamp_nanos: k as i64,
-        camera,
-        world_from_camera: Rigid::new(
-            glam::DQuat::from_rotation_x(-std::f64::consts::FRAC_PI_2),
-            glam::DVec3::new(12.0, -5.0, 1.0 + k as f64 * 0.01),
-        ),
-    };
+
     let mut csv = String::from("instances,window,fuse_ms,graph_ms,edges\n");
     let (mut fuse_series, mut graph_series) = (Vec::new(), Vec::new());
     let mut md = format!(
@@ -241,12 +265,7 @@ fn graph_bench(sizes: &[usize], window: usize, out: &Path) -> Result<()> {
     );
     for &n in sizes {
         let mut map = SceneMap::new(FusionParams::default());
-        let views: Vec<WindowView> = (0..4)
-            .map(|k| WindowView {
-                keyframe: keyframe(k),
-                depth: vec![100.0; 128 * 96],
-            })
-            .collect();
+        let views = bench_views()?;
         let initial = (0..n)
             .map(|k| WindowInstance {
                 gaussians: cube(place(k), 8),
@@ -304,7 +323,7 @@ fn graph_bench(sizes: &[usize], window: usize, out: &Path) -> Result<()> {
 }
 
 /// A log-log line chart as SVG: one series per (name, points).
-fn line_chart(
+pub(crate) fn line_chart(
     path: &Path,
     title: &str,
     x_label: &str,
@@ -421,6 +440,11 @@ pub fn run(command: BenchCommand) -> Result<()> {
             window,
             out,
         } => graph_bench(&instances, window, &out),
+        BenchCommand::Refer {
+            instances,
+            rounds,
+            out,
+        } => crate::bench_refer::refer_bench(&instances, rounds, &out),
         BenchCommand::Dropout {
             levels,
             split,

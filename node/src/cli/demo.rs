@@ -167,6 +167,18 @@ fn print_report(report: &DemoReport) {
             e.text, e.targets, a.millis
         );
     }
+    let overview = report.answers.iter().find(|a| a.response.success).map(|a| {
+        report.evidence_dir.join(format!(
+            "{}_overview.png",
+            groupforward::refer::evidence::stem(&a.expression.text)
+        ))
+    });
+    if let Some(path) = overview.filter(|p| p.exists()) {
+        println!(
+            "  evidence the reasoner saw (candidates numbered, the answer outlined heavier): {}",
+            path.display()
+        );
+    }
     match &report.vocabulary {
         Ok(matches) => {
             println!("  open vocabulary (all-MiniLM-L6-v2 int8 via ONNX Runtime), phrase -> sim class by name, description or affordance:");

@@ -71,6 +71,17 @@ pub enum EvalCommand {
         expressions: Option<PathBuf>,
         #[arg(long)]
         effects: Option<String>,
+        /// Write every answer's evidence bundle (PNG + JSON) here.
+        #[arg(long)]
+        evidence: Option<PathBuf>,
+        /// `builtin` (default) or `vlm` (needs `--vlm-endpoint`).
+        #[arg(long, default_value = "builtin")]
+        reasoner: String,
+        /// OpenAI-compatible API base URL for `--reasoner vlm`, e.g. http://localhost:8000/v1.
+        #[arg(long, default_value = "")]
+        vlm_endpoint: String,
+        #[arg(long, default_value = "")]
+        vlm_model: String,
         #[arg(long, default_value = "target/eval/refer")]
         out: PathBuf,
     },
@@ -97,10 +108,21 @@ pub fn run(command: EvalCommand) -> Result<()> {
             scene,
             expressions,
             effects,
+            evidence,
+            reasoner,
+            vlm_endpoint,
+            vlm_model,
             out,
         } => {
             let files = scene_files(&split, first_index, scenes, &scene, effects.as_deref())?;
-            crate::eval_refer::eval_refer(&files, expressions.as_deref(), &out)
+            let mut config = eval_config(None);
+            config.refer.reasoner = reasoner;
+            config.refer.vlm.endpoint = vlm_endpoint;
+            config.refer.vlm.model = vlm_model;
+            config.refer.evidence_dir = evidence
+                .map(|d| d.display().to_string())
+                .unwrap_or_default();
+            crate::eval_refer::eval_refer(&files, &config, expressions.as_deref(), &out)
         }
     }
 }

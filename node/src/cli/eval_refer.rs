@@ -7,14 +7,15 @@ use std::path::Path;
 use std::sync::{Arc, Mutex};
 
 use anyhow::{Context, Result};
-use groupforward::eval::refer::{ask_scene, ReferRecord};
+use groupforward::eval::refer::{ask_scene, held_out_views, ReferRecord, Referrer, SceneTruth};
 use groupforward::eval::run::run_scene;
 use groupforward::window::WindowModels;
 use groupforward_sim::referring::{scene_expressions, Expression};
 use groupforward_sim::scene::SceneFile;
+use groupforward_sim::simulation::Simulation;
 
-use crate::eval::eval_config;
 use crate::sim::progress_bar;
+use groupforward::config::Config;
 
 /// A line of `--expressions`: the scene's name with the sim's expression record.
 #[derive(Debug, serde::Deserialize)]
@@ -56,6 +57,8 @@ struct Group {
     accuracy_when_in_map: f64,
     acc_at_25: f64,
     acc_at_50: f64,
+    /// Over expressions whose targets some held-out view sees.
+    referring_miou: f64,
 }
 
 fn group(records: &[&ReferRecord]) -> Group {
@@ -77,11 +80,19 @@ fn group(records: &[&ReferRecord]) -> Group {
         accuracy_when_in_map: rate(&in_map, |r| r.correct),
         acc_at_25: rate(&single, |r| r.iou >= 0.25),
         acc_at_50: rate(&single, |r| r.iou >= 0.5),
+        referring_miou: {
+            let ious: Vec<f64> = records.iter().filter_map(|r| r.mask_iou).collect();
+            ious.iter().sum::<f64>() / ious.len().max(1) as f64
+        },
     }
 }
 
-pub fn eval_refer(files: &[SceneFile], expressions: Option<&Path>, out: &Path) -> Result<()> {
-    let config = eval_config(None);
+pub fn eval_refer(
+    files: &[SceneFile],
+    config: &Config,
+    expressions: Option<&Path>,
+    out: &Path,
+) -> Result<()> {
     let mut models = WindowModels::load(&config.models, &config.semantics)
         .context("loading the models (`make setup` installs ONNX Runtime)")?;
     let encoder = models.text_encoder.take().map(|e| Arc::new(Mutex::new(e)));
@@ -99,17 +110,21 @@ pub fn eval_refer(files: &[SceneFile], expressions: Option<&Path>, out: &Path) -
                 .collect(),
             None => scene_expressions(file).map_err(|e| anyhow::anyhow!("{}: {e}", file.name))?,
         };
-        let run = run_scene(file, &config, &mut models)
-            .with_context(|| format!("scene {}", file.name))?;
-        records.extend(ask_scene(
-            &file.name,
-            run.map,
-            &run.objects,
-            models.vocabulary.clone(),
-            encoder.clone(),
-            &config.refer,
-            &asked,
-        ));
+        let run =
+            run_scene(file, config, &mut models).with_context(|| format!("scene {}", file.name))?;
+        let sim =
+            Simulation::new(file.clone()).map_err(|e| anyhow::anyhow!("{}: {e}", file.name))?;
+        let views = held_out_views(&sim, &run.map);
+        let referrer = Referrer {
+            vocabulary: models.vocabulary.clone(),
+            encoder: encoder.clone(),
+            section: config.refer.clone(),
+        };
+        let truth = SceneTruth {
+            objects: &run.objects,
+            views: &views,
+        };
+        records.extend(ask_scene(&file.name, run.map, &referrer, truth, &asked));
         bar.inc(1);
     }
     bar.finish_and_clear();
@@ -120,13 +135,13 @@ fn write_outputs(records: &[ReferRecord], out: &Path) -> Result<()> {
     let mut csv = std::io::BufWriter::new(std::fs::File::create(out.join("expressions.csv"))?);
     writeln!(
         csv,
-        "scene,expression,relation,view_dependent,hard,targets,answered,correct,topk_hit,targets_in_map,iou,millis,reasoner,message"
+        "scene,expression,relation,view_dependent,hard,targets,answered,correct,topk_hit,targets_in_map,iou,mask_iou,millis,reasoner,message"
     )?;
     let ids = |v: &[u16]| v.iter().map(u16::to_string).collect::<Vec<_>>().join(" ");
     for r in records {
         writeln!(
             csv,
-            "{},\"{}\",{},{},{},{},{},{},{},{},{:.4},{:.3},{},\"{}\"",
+            "{},\"{}\",{},{},{},{},{},{},{},{},{:.4},{},{:.3},{},\"{}\"",
             r.scene,
             r.expression.replace('"', "'"),
             r.relation,
@@ -138,6 +153,7 @@ fn write_outputs(records: &[ReferRecord], out: &Path) -> Result<()> {
             r.topk_hit,
             r.targets_in_map,
             r.iou,
+            r.mask_iou.map_or(String::new(), |v| format!("{v:.4}")),
             r.millis,
             r.reasoner_used,
             r.message.replace('"', "'"),
@@ -187,6 +203,7 @@ fn write_outputs(records: &[ReferRecord], out: &Path) -> Result<()> {
         "accuracy_when_in_map": total.accuracy_when_in_map,
         "acc_at_25": total.acc_at_25,
         "acc_at_50": total.acc_at_50,
+        "referring_miou": total.referring_miou,
         "query_p50_ms": percentile(0.5),
         "query_p99_ms": percentile(0.99),
         "queries": records.len(),
@@ -197,12 +214,12 @@ fn write_outputs(records: &[ReferRecord], out: &Path) -> Result<()> {
         serde_json::to_string_pretty(&json)?,
     )?;
     let mut table = String::from(
-        "| expressions | queries | selection accuracy | top-K recall | targets in map | accuracy when in map | Acc@0.25 | Acc@0.5 |\n\
-         | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |\n",
+        "| expressions | queries | selection accuracy | top-K recall | targets in map | accuracy when in map | Acc@0.25 | Acc@0.5 | referring mIoU |\n\
+         | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |\n",
     );
     for (name, g) in &rows {
         table += &format!(
-            "| {name} | {} | {:.1}% | {:.1}% | {:.1}% | {:.1}% | {:.1}% | {:.1}% |\n",
+            "| {name} | {} | {:.1}% | {:.1}% | {:.1}% | {:.1}% | {:.1}% | {:.1}% | {:.3} |\n",
             g.queries,
             100.0 * g.selection_accuracy,
             100.0 * g.topk_recall,
@@ -210,6 +227,7 @@ fn write_outputs(records: &[ReferRecord], out: &Path) -> Result<()> {
             100.0 * g.accuracy_when_in_map,
             100.0 * g.acc_at_25,
             100.0 * g.acc_at_50,
+            g.referring_miou,
         );
     }
     std::fs::write(out.join("summary.md"), &table)?;

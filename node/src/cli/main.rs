@@ -2,6 +2,7 @@
 //! the node, this binary wires them up.
 
 mod bench;
+mod bench_refer;
 mod demo;
 mod eval;
 mod eval_refer;

@@ -15,15 +15,110 @@ use groupforward_sim::referring::Expression;
 use serde::Serialize;
 
 use super::score::TruthObject;
+use crate::frame::Keyframe;
 use crate::graph::SceneMap;
 use crate::group::semantics::Vocabulary;
+use crate::model::reconstruction::resized_camera;
 use crate::model::text::TextEncoder;
 use crate::node::services::{handle_refer, Shared};
 use crate::recon::boxes::OrientedBox;
+use crate::recon::camera::Camera;
+use crate::recon::gaussians::Gaussians;
+use crate::recon::raster::{render, RasterSettings};
+use crate::recon::Rigid;
+use crate::refer::response::label_image;
 use crate::refer::ReferSection;
+use groupforward_sim::simulation::Simulation;
 
 /// An answer box farther than this from every object (and overlapping none) names no object.
 const MATCH_DISTANCE_M: f64 = 0.5;
+
+/// Held-out views are rendered at this width (height by the camera's aspect).
+pub const HELD_OUT_WIDTH: usize = 160;
+/// Every this many frames of the trajectory, offset by half of it from the first frame.
+pub const HELD_OUT_EVERY: usize = 10;
+
+/// A view of the scene for scoring masks: a camera pose and intrinsics (at reduced resolution),
+/// the ground-truth instance ids seen there, and the map's depth rendered there (occlusion).
+#[derive(Debug, Clone, PartialEq)]
+pub struct HeldOutView {
+    pub keyframe: Keyframe,
+    pub truth: Vec<u16>,
+    pub scene_depth: Vec<f32>,
+}
+
+/// Views of `sim`'s first camera every [`HELD_OUT_EVERY`] frames starting half a stride in,
+/// (pinhole cameras only), with the ground truth resampled to the render size and `map`'s depth.
+pub fn held_out_views(sim: &Simulation, map: &SceneMap) -> Vec<HeldOutView> {
+    let mut all = Gaussians::with_dims(0, 0);
+    for instance in &map.instances {
+        all.extend_geometry(&instance.gaussians);
+    }
+    (HELD_OUT_EVERY / 2..sim.frame_count())
+        .step_by(HELD_OUT_EVERY)
+        .filter_map(|i| {
+            let frame = sim.frame(i);
+            let view = frame.views.into_iter().find(|v| v.camera == 0)?;
+            if view.distortion.is_some() {
+                return None;
+            }
+            let p = view.pinhole;
+            let full = Camera::pinhole(p.width, p.height, p.fx, p.fy, p.cx, p.cy).ok()?;
+            let height = (HELD_OUT_WIDTH as f64 * f64::from(p.height) / f64::from(p.width)).round();
+            let camera = resized_camera(&full, HELD_OUT_WIDTH, height as usize);
+            let (w, h) = (camera.width as usize, camera.height as usize);
+            let truth = (0..w * h)
+                .map(|k| {
+                    let (x, y) = (k % w, k / w);
+                    let sx = (x * p.width as usize / w).min(p.width as usize - 1);
+                    let sy = (y * p.height as usize / h).min(p.height as usize - 1);
+                    view.truth.instance[sy * p.width as usize + sx]
+                })
+                .collect();
+            let keyframe = Keyframe {
+                stamp_nanos: (frame.stamp_secs * 1e9) as i64,
+                camera,
+                world_from_camera: Rigid::new(view.rotation, view.position),
+            };
+            let scene_depth = render(
+                &all,
+                &[],
+                0,
+                &keyframe.camera,
+                &keyframe.world_from_camera.inverse(),
+                &RasterSettings::default(),
+            )
+            .map(|r| r.depth)
+            .unwrap_or_default();
+            Some(HeldOutView {
+                keyframe,
+                truth,
+                scene_depth,
+            })
+        })
+        .collect()
+}
+
+/// Mean IoU, over the held-out views that see a target, of the answer's rendered mask against
+/// the targets' ground-truth mask (an answer without instances scores 0 there).
+pub fn referring_iou(answer: &[&Gaussians], targets: &[u16], views: &[HeldOutView]) -> Option<f64> {
+    let mut ious = Vec::new();
+    for view in views {
+        let truth: Vec<bool> = view.truth.iter().map(|id| targets.contains(id)).collect();
+        if !truth.iter().any(|t| *t) {
+            continue;
+        }
+        let predicted = label_image(answer, &view.keyframe, &view.scene_depth);
+        let (mut inter, mut union) = (0usize, 0usize);
+        for (p, t) in predicted.iter().zip(&truth) {
+            let p = *p > 0;
+            inter += usize::from(p && *t);
+            union += usize::from(p || *t);
+        }
+        ious.push(inter as f64 / union.max(1) as f64);
+    }
+    (!ious.is_empty()).then(|| ious.iter().sum::<f64>() / ious.len() as f64)
+}
 
 /// One expression, asked and scored.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -44,6 +139,8 @@ pub struct ReferRecord {
     pub targets_in_map: bool,
     /// Single-target expressions: the answer's box IoU with the target's (0 otherwise).
     pub iou: f64,
+    /// Referring mIoU over held-out views that see a target (None: none does).
+    pub mask_iou: Option<f64>,
     pub millis: f64,
     pub success: bool,
     pub message: String,
@@ -107,20 +204,34 @@ pub fn request_for(expression: &Expression) -> ReferRequest {
     request
 }
 
+/// What answers the questions: the names, the text encoder and the `refer` config.
+#[derive(Debug, Clone)]
+pub struct Referrer {
+    pub vocabulary: Option<Vocabulary>,
+    pub encoder: Option<Arc<Mutex<TextEncoder>>>,
+    pub section: ReferSection,
+}
+
+/// A scene's ground truth beside the pipeline: its objects and held-out views.
+#[derive(Debug, Clone, Copy)]
+pub struct SceneTruth<'a> {
+    pub objects: &'a [TruthObject],
+    pub views: &'a [HeldOutView],
+}
+
 /// Ask every expression of a scene on its final `map` and score the answers.
 pub fn ask_scene(
     scene: &str,
     map: SceneMap,
-    objects: &[TruthObject],
-    vocabulary: Option<Vocabulary>,
-    encoder: Option<Arc<Mutex<TextEncoder>>>,
-    section: &ReferSection,
+    referrer: &Referrer,
+    truth: SceneTruth<'_>,
     expressions: &[Expression],
 ) -> Vec<ReferRecord> {
+    let SceneTruth { objects, views } = truth;
     let mut shared = Shared {
-        vocabulary,
-        text_encoder: encoder,
-        refer: section.clone(),
+        vocabulary: referrer.vocabulary.clone(),
+        text_encoder: referrer.encoder.clone(),
+        refer: referrer.section.clone(),
         world_frame: "map".into(),
         ..Shared::default()
     };
@@ -173,6 +284,19 @@ pub fn ask_scene(
                 .filter_map(|c| box_of(&c.id, &shared))
                 .map(|b| matched_object(&b, objects).0)
                 .collect();
+            let gaussians: Vec<Gaussians> = shared
+                .lock()
+                .map(|s| {
+                    response
+                        .instance_ids
+                        .iter()
+                        .filter_map(|id| s.map.instances.iter().find(|i| &i.id == id))
+                        .map(|i| i.gaussians.clone())
+                        .collect()
+                })
+                .unwrap_or_default();
+            let refs: Vec<&Gaussians> = gaussians.iter().collect();
+            let mask_iou = referring_iou(&refs, &e.targets, views);
             let iou = match (&e.targets[..], &matches[..]) {
                 ([target], [(id, iou)]) if id == target => *iou,
                 _ => 0.0,
@@ -192,6 +316,7 @@ pub fn ask_scene(
                 topk_hit: e.targets.iter().all(|t| candidates.contains(t)),
                 targets_in_map: e.targets.iter().all(|t| in_map.contains(t)),
                 iou,
+                mask_iou,
                 millis,
                 success: response.success,
                 message: response.message,

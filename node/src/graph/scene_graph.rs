@@ -30,12 +30,7 @@ impl SceneMap {
         let mut all = Gaussians::with_dims(0, 0);
         let mut owner = Vec::new();
         for (k, instance) in self.instances.iter().enumerate() {
-            let mut g = instance.gaussians.clone();
-            g.embedding_dim = 0;
-            g.embeddings.clear();
-            g.extra_dim = 0;
-            g.extra.clear();
-            all.extend(&g);
+            all.extend_geometry(&instance.gaussians);
             owner.extend(std::iter::repeat_n(k, instance.gaussians.len()));
         }
         let depths: Vec<Vec<f32>> = keyframes

@@ -49,6 +49,8 @@ pub struct Shared {
     pub refer: ReferSection,
     /// The map's frame (answers' clouds are expressed in it).
     pub world_frame: String,
+    /// Bumped whenever the map is replaced (load_map): a snapshot of an older map is discarded.
+    pub map_generation: u64,
 }
 
 fn time_of(nanos: i64) -> Time {
@@ -100,16 +102,22 @@ impl Shared {
     /// Replace the map and refresh the instance messages.
     pub fn set_map(&mut self, map: SceneMap) {
         self.map = map;
+        self.map_generation += 1;
         self.refresh_instances();
     }
 
     /// Rebuild the instance messages and the referring snapshot after the map changed in place.
     pub fn refresh_instances(&mut self) {
-        self.instances = instance_messages(&self.map, self.vocabulary.as_ref(), self.hypotheses);
+        self.refresh_messages();
         match ReferScene::build(&self.map, self.vocabulary.as_ref()) {
             Ok(scene) => self.refer_scene = Arc::new(scene),
             Err(e) => tracing::warn!("referring snapshot not refreshed: {e}"),
         }
+    }
+
+    /// Rebuild the instance messages only (the snapshot is rebuilt by the caller, off the lock).
+    pub fn refresh_messages(&mut self) {
+        self.instances = instance_messages(&self.map, self.vocabulary.as_ref(), self.hypotheses);
     }
 }
 
@@ -320,7 +328,7 @@ pub fn refer_request(shared: &Mutex<Shared>, request: &ReferRequest) -> ReferRes
             answer = refer::with_vlm(answer, client.as_ref().map_err(Clone::clone), &evidence);
         }
         if !section.evidence_dir.is_empty() {
-            let stem = evidence_stem(&request.expression);
+            let stem = refer::evidence::stem(&request.expression);
             if let Err(e) = refer::evidence::write(
                 std::path::Path::new(&section.evidence_dir),
                 &stem,
@@ -357,21 +365,6 @@ pub fn refer_request(shared: &Mutex<Shared>, request: &ReferRequest) -> ReferRes
             ),
         });
     refer::response::response(&answer, &scene, &gaussians, &world_frame, novel.as_ref())
-}
-
-/// A file stem for an expression's evidence: its words, lower case, joined by `_`.
-fn evidence_stem(expression: &str) -> String {
-    let words: Vec<String> = expression
-        .split(|c: char| !c.is_alphanumeric())
-        .filter(|w| !w.is_empty())
-        .take(12)
-        .map(str::to_lowercase)
-        .collect();
-    if words.is_empty() {
-        "query".into()
-    } else {
-        words.join("_")
-    }
 }
 
 /// The `Refer` service: CDR in, CDR out.

@@ -43,6 +43,18 @@ pub struct Gaussians {
 }
 
 impl Gaussians {
+    /// Append `other`'s geometry and colour only (no embeddings or extra channels): what a
+    /// render of several instances together needs.
+    /// `self` must carry no embeddings or extras itself (`with_dims(0, 0)`).
+    pub fn extend_geometry(&mut self, other: &Gaussians) {
+        debug_assert!(self.embedding_dim == 0 && self.extra_dim == 0);
+        self.means.extend_from_slice(&other.means);
+        self.opacities.extend_from_slice(&other.opacities);
+        self.scales.extend_from_slice(&other.scales);
+        self.rotations.extend_from_slice(&other.rotations);
+        self.colors.extend_from_slice(&other.colors);
+    }
+
     pub fn with_dims(embedding_dim: usize, extra_dim: usize) -> Self {
         Self {
             embedding_dim,

@@ -1,7 +1,7 @@
 //! The evidence bundle a reasoner sees (DESIGN §5.7): per candidate the structured node as JSON
 //! (names, centre, extent, volume, colour, visibility, its nearest neighbours), and images
 //! rendered from the map with the rasterizer at the newest keyframe: a global overview with the
-//! candidates' outlines numbered, and one image per candidate with its mask highlighted. Written
+//! candidates' outlines numbered (the current choice drawn heavier), and one image per candidate with its mask highlighted. Written
 //! as PNG + JSON by `--evidence DIR` so a person can look at what the reasoner saw.
 
 use std::path::Path;
@@ -131,12 +131,7 @@ fn images(
     };
     for (id, g) in gaussians {
         let owner = candidate_of(id).map_or(0.0, |k| (k + 1) as f32);
-        let mut bare = g.clone();
-        bare.embedding_dim = 0;
-        bare.embeddings.clear();
-        bare.extra_dim = 0;
-        bare.extra.clear();
-        all.extend(&bare);
+        all.extend_geometry(g);
         for c in &g.colors {
             features.extend_from_slice(&[c.x, c.y, c.z, owner]);
         }
@@ -177,7 +172,9 @@ fn images(
         let node = &scene.nodes[c.index];
         if let Some((lo, hi)) = projected_box(node, &view) {
             let colour = PALETTE[k % PALETTE.len()];
-            draw_rect(&mut overview, lo, hi, colour);
+            // The reasoner's choice is drawn heavier: the overview shows the answer at a glance.
+            let chosen = answer.chosen.iter().any(|ch| ch.index == c.index);
+            draw_rect(&mut overview, lo, hi, colour, if chosen { 5 } else { 2 });
             draw_number(
                 &mut overview,
                 lo.x as i64 + 2,
@@ -249,9 +246,9 @@ fn put(image: &mut RgbImage, x: i64, y: i64, colour: [u8; 3]) {
     image.data[i..i + 3].copy_from_slice(&colour);
 }
 
-fn draw_rect(image: &mut RgbImage, lo: DVec2, hi: DVec2, colour: [u8; 3]) {
+fn draw_rect(image: &mut RgbImage, lo: DVec2, hi: DVec2, colour: [u8; 3], thickness: i64) {
     let (x0, y0, x1, y1) = (lo.x as i64, lo.y as i64, hi.x as i64, hi.y as i64);
-    for t in 0..2 {
+    for t in 0..thickness {
         for x in x0..=x1 {
             put(image, x, y0 + t, colour);
             put(image, x, y1 - t, colour);
@@ -323,6 +320,21 @@ pub fn png(image: &RgbImage) -> Result<Vec<u8>, String> {
     )
     .map_err(|e| e.to_string())?;
     Ok(out)
+}
+
+/// A file stem for an expression's evidence: its words, lower case, joined by `_`.
+pub fn stem(expression: &str) -> String {
+    let words: Vec<String> = expression
+        .split(|c: char| !c.is_alphanumeric())
+        .filter(|w| !w.is_empty())
+        .take(12)
+        .map(str::to_lowercase)
+        .collect();
+    if words.is_empty() {
+        "query".into()
+    } else {
+        words.join("_")
+    }
 }
 
 /// Write `evidence` to `dir` as `evidence.json` and one PNG per image, named `<stem>_<name>.png`.

@@ -102,43 +102,44 @@ pub fn instance_cloud(frame_id: &str, stamp: Time, instances: &[(u32, &Gaussians
 }
 
 /// The label image of `instances` in `keyframe`: pixel = 1 + the index of the instance seen
-/// there, 0 for none. `scene_depth` (the whole map's rendered depth there, 0 = nothing) cuts
-/// away what other instances hide.
+/// there, 0 for none. One render of them all with an owner channel (so the nearest wins), cut by
+/// `scene_depth` (the whole map's rendered depth there, 0 = nothing) so what other instances hide
+/// stays out.
 pub fn label_image(instances: &[&Gaussians], keyframe: &Keyframe, scene_depth: &[f32]) -> Vec<u16> {
     let (w, h) = (
         keyframe.camera.width as usize,
         keyframe.camera.height as usize,
     );
-    let mut labels = vec![0u16; w * h];
-    let mut nearest = vec![f32::INFINITY; w * h];
-    let camera_from_world = keyframe.world_from_camera.inverse();
+    let mut all = Gaussians::with_dims(0, 0);
+    let mut owner = Vec::new();
     for (k, g) in instances.iter().enumerate() {
-        let mut bare = (*g).clone();
-        bare.embedding_dim = 0;
-        bare.embeddings.clear();
-        bare.extra_dim = 0;
-        bare.extra.clear();
-        let Ok(r) = render(
-            &bare,
-            &[],
-            0,
-            &keyframe.camera,
-            &camera_from_world,
-            &RasterSettings::default(),
-        ) else {
-            continue;
-        };
-        for p in 0..w * h {
+        all.extend_geometry(g);
+        owner.extend(std::iter::repeat_n((k + 1) as f32, g.len()));
+    }
+    let Ok(r) = render(
+        &all,
+        &owner,
+        1,
+        &keyframe.camera,
+        &keyframe.world_from_camera.inverse(),
+        &RasterSettings::default(),
+    ) else {
+        return vec![0; w * h];
+    };
+    (0..w * h)
+        .map(|p| {
             let d = r.depth[p];
             let reference = scene_depth.get(p).copied().unwrap_or(0.0);
             let unoccluded = reference <= 0.0 || d <= reference + MASK_DEPTH_TOLERANCE;
-            if r.alpha[p] > 0.5 && unoccluded && d < nearest[p] {
-                nearest[p] = d;
-                labels[p] = (k + 1) as u16;
+            if r.alpha[p] > 0.5 && unoccluded {
+                (r.features[p] / r.alpha[p])
+                    .round()
+                    .clamp(0.0, f32::from(u16::MAX)) as u16
+            } else {
+                0
             }
-        }
-    }
-    labels
+        })
+        .collect()
 }
 
 fn mono16(header: Header, w: u32, h: u32, labels: &[u16]) -> Image {
