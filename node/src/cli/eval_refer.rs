@@ -82,7 +82,7 @@ fn group(records: &[&ReferRecord]) -> Group {
         acc_at_50: rate(&single, |r| r.iou >= 0.5),
         referring_miou: {
             let ious: Vec<f64> = records.iter().filter_map(|r| r.mask_iou).collect();
-            ious.iter().sum::<f64>() / ious.len().max(1) as f64
+            ious.iter().fold(0.0, |a, b| a + b) / ious.len().max(1) as f64
         },
     }
 }

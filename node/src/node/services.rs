@@ -109,7 +109,7 @@ impl Shared {
     /// Rebuild the instance messages and the referring snapshot after the map changed in place.
     pub fn refresh_instances(&mut self) {
         self.refresh_messages();
-        match ReferScene::build(&self.map, self.vocabulary.as_ref()) {
+        match ReferScene::build(self.map.clone(), self.vocabulary.as_ref()) {
             Ok(scene) => self.refer_scene = Arc::new(scene),
             Err(e) => tracing::warn!("referring snapshot not refreshed: {e}"),
         }
@@ -307,16 +307,12 @@ pub fn refer_request(shared: &Mutex<Shared>, request: &ReferRequest) -> ReferRes
         Err(e) => return failure(e.to_string()),
     };
     if reasoner == "vlm" || !section.evidence_dir.is_empty() {
-        // The evidence is rendered from the whole map: copy it out, render without the lock.
-        let all: Vec<(String, crate::recon::gaussians::Gaussians)> = match shared.lock() {
-            Ok(s) => s
-                .map
-                .instances
-                .iter()
-                .map(|i| (i.id.clone(), i.gaussians.clone()))
-                .collect(),
-            Err(e) => return failure(e.to_string()),
-        };
+        let all: Vec<(String, crate::recon::gaussians::Gaussians)> = scene
+            .map
+            .instances
+            .iter()
+            .map(|i| (i.id.clone(), i.gaussians.clone()))
+            .collect();
         let images = if reasoner == "vlm" {
             section.vlm.max_images
         } else {
@@ -338,22 +334,12 @@ pub fn refer_request(shared: &Mutex<Shared>, request: &ReferRequest) -> ReferRes
             }
         }
     }
-    let gaussians: Vec<_> = match shared.lock() {
-        Ok(s) => answer
-            .chosen
-            .iter()
-            .map(|c| {
-                let id = &scene.nodes[c.index].id;
-                s.map
-                    .instances
-                    .iter()
-                    .find(|i| &i.id == id)
-                    .map(|i| i.gaussians.clone())
-                    .unwrap_or_default()
-            })
-            .collect(),
-        Err(e) => return failure(e.to_string()),
-    };
+    // From the snapshot that chose them: consistent even if the live map moved on since.
+    let gaussians: Vec<_> = answer
+        .chosen
+        .iter()
+        .map(|c| scene.gaussians(&scene.nodes[c.index].id))
+        .collect();
     let novel = view
         .zip(scene.keyframes.first())
         .map(|(v, latest)| Keyframe {

@@ -73,7 +73,7 @@ pub(super) fn start_window_worker(
                             let (map, vocabulary) = (s.map.clone(), s.vocabulary.clone());
                             let generation = s.map_generation;
                             drop(s);
-                            let snapshot = ReferScene::build(&map, vocabulary.as_ref());
+                            let snapshot = ReferScene::build(map, vocabulary.as_ref());
                             let Ok(mut s) = shared.lock() else { return };
                             match snapshot {
                                 // A map loaded meanwhile has its own snapshot already.

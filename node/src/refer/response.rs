@@ -19,6 +19,8 @@ use crate::recon::raster::{render, RasterSettings};
 
 /// Depth tolerance of the occlusion cut (metres).
 pub const MASK_DEPTH_TOLERANCE: f32 = 0.1;
+/// A pixel belongs to a mask where the instance renders at least this opaque.
+pub const MASK_ALPHA: f32 = 0.5;
 
 /// A box's centre and yaw as a pose.
 pub fn box_pose(b: &OrientedBox) -> Pose {
@@ -131,7 +133,7 @@ pub fn label_image(instances: &[&Gaussians], keyframe: &Keyframe, scene_depth: &
             let d = r.depth[p];
             let reference = scene_depth.get(p).copied().unwrap_or(0.0);
             let unoccluded = reference <= 0.0 || d <= reference + MASK_DEPTH_TOLERANCE;
-            if r.alpha[p] > 0.5 && unoccluded {
+            if r.alpha[p] > MASK_ALPHA && unoccluded {
                 (r.features[p] / r.alpha[p])
                     .round()
                     .clamp(0.0, f32::from(u16::MAX)) as u16

@@ -158,7 +158,8 @@ pub fn color_distance(observed: [f32; 3], named: DVec3) -> f64 {
     (o * scale - named).length()
 }
 
-/// Anchor instances per anchor concept, best first, those scoring at least half the best.
+/// Anchor instances per anchor concept, best first: those that fit the concept at all and score
+/// at least half the best.
 pub fn anchor_lists(scene: &ReferScene, anchors: &[Concept]) -> Vec<AnchorList> {
     anchors
         .iter()
@@ -171,7 +172,8 @@ pub fn anchor_lists(scene: &ReferScene, anchors: &[Concept]) -> Vec<AnchorList> 
                 .collect();
             list.sort_by(|a, b| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0)));
             let best = list.first().map_or(0.0, |a| a.1);
-            list.retain(|a| a.1 > 0.0 && a.1 >= 0.5 * best);
+            // An anchor the map does not hold is no anchor: never relate to a stand-in.
+            list.retain(|a| a.1 >= super::reasoner::MIN_SEMANTIC && a.1 >= 0.5 * best);
             list
         })
         .collect()

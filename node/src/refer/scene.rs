@@ -4,12 +4,15 @@
 //! newest keyframes; per keyframe, its pose and the map's rendered depth (the occlusion reference
 //! masks are cut against).
 
+use std::sync::Arc;
+
 use glam::DVec3;
 
 use crate::frame::Keyframe;
 use crate::graph::{GraphError, SceneMap};
 use crate::group::semantics::{Vocabulary, OTHER_PHRASE};
 use crate::recon::boxes::OrientedBox;
+use crate::recon::gaussians::Gaussians;
 
 /// Keyframes a snapshot keeps (newest first): what visibility and masks are computed in.
 pub const SNAPSHOT_VIEWS: usize = 4;
@@ -52,12 +55,15 @@ pub struct ReferScene {
     /// Newest first, with the map's depth rendered in each.
     pub keyframes: Vec<Keyframe>,
     pub depths: Vec<Vec<f32>>,
+    /// The map the snapshot was taken of: answers take their Gaussians from here, so an answer
+    /// is consistent with the scores that chose it even when the live map moved on.
+    pub map: Arc<SceneMap>,
 }
 
 impl ReferScene {
     /// Snapshot `map`, naming instances with `vocabulary` (none: instances are unnamed and no
     /// concept can be matched).
-    pub fn build(map: &SceneMap, vocabulary: Option<&Vocabulary>) -> Result<Self, GraphError> {
+    pub fn build(map: SceneMap, vocabulary: Option<&Vocabulary>) -> Result<Self, GraphError> {
         let (graph, depths) = map.graph_with_depths(SNAPSHOT_VIEWS, 0.0)?;
         let mut nodes = Vec::new();
         for (instance, node) in map.instances.iter().zip(&graph.nodes) {
@@ -110,11 +116,22 @@ impl ReferScene {
                 .cloned()
                 .collect(),
             depths,
+            map: Arc::new(map),
         })
     }
 
     pub fn node(&self, id: &str) -> Option<&ReferNode> {
         self.nodes.iter().find(|n| n.id == id)
+    }
+
+    /// The Gaussians of the snapshot's instance `id` (empty if it has none).
+    pub fn gaussians(&self, id: &str) -> Gaussians {
+        self.map
+            .instances
+            .iter()
+            .find(|i| i.id == id)
+            .map(|i| i.gaussians.clone())
+            .unwrap_or_default()
     }
 }
 

@@ -90,8 +90,7 @@ fn room() -> ReferScene {
         ],
         phrases: PHRASES.iter().map(|p| p.to_string()).collect(),
         embeddings: PHRASES.iter().map(|p| embeddings.0[p].clone()).collect(),
-        keyframes: Vec::new(),
-        depths: Vec::new(),
+        ..ReferScene::default()
     }
 }
 
