@@ -54,6 +54,7 @@ struct Group {
     selection_accuracy: f64,
     topk_recall: f64,
     targets_in_map: f64,
+    /// Over expressions whose targets and anchors all have instances in the map.
     accuracy_when_in_map: f64,
     acc_at_25: f64,
     acc_at_50: f64,
@@ -214,7 +215,7 @@ fn write_outputs(records: &[ReferRecord], out: &Path) -> Result<()> {
         serde_json::to_string_pretty(&json)?,
     )?;
     let mut table = String::from(
-        "| expressions | queries | selection accuracy | top-K recall | targets in map | accuracy when in map | Acc@0.25 | Acc@0.5 | referring mIoU |\n\
+        "| expressions | queries | selection accuracy | top-K recall | targets in map | accuracy when targets and anchors in map | Acc@0.25 | Acc@0.5 | referring mIoU |\n\
          | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |\n",
     );
     for (name, g) in &rows {

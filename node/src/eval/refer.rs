@@ -137,6 +137,8 @@ pub struct ReferRecord {
     pub topk_hit: bool,
     /// Every target has an instance in the map (matched the same way).
     pub targets_in_map: bool,
+    /// So has every anchor object the expression relates to (true when it has none).
+    pub anchors_in_map: bool,
     /// Single-target expressions: the answer's box IoU with the target's (0 otherwise).
     pub iou: f64,
     /// Referring mIoU over held-out views that see a target (None: none does).
@@ -181,6 +183,16 @@ pub fn matched_object(b: &OrientedBox, objects: &[TruthObject]) -> (u16, f64) {
         .filter(|(_, d)| *d <= MATCH_DISTANCE_M)
         .min_by(|a, c| a.1.total_cmp(&c.1))
         .map_or((0, 0.0), |(id, _)| (id, 0.0))
+}
+
+/// Whether the map holds what `e` relates to: both anchors of "between", any one of the others
+/// (support relations hold with any instance of the anchor class).
+fn anchors_in_map(e: &Expression, in_map: &[u16]) -> bool {
+    if e.relation == groupforward_sim::referring::Relation::Between {
+        e.anchors.iter().all(|a| in_map.contains(a))
+    } else {
+        e.anchors.is_empty() || e.anchors.iter().any(|a| in_map.contains(a))
+    }
 }
 
 /// The request a client would send for `expression` (its view, if view-dependent).
@@ -315,6 +327,8 @@ pub fn ask_scene(
                 answered,
                 topk_hit: e.targets.iter().all(|t| candidates.contains(t)),
                 targets_in_map: e.targets.iter().all(|t| in_map.contains(t)),
+                // Support relations hold with any anchor of the class: one in the map suffices.
+                anchors_in_map: anchors_in_map(e, &in_map),
                 iou,
                 mask_iou,
                 millis,
