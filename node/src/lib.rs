@@ -3,7 +3,8 @@
 //! Data flow (DESIGN §2): camera, depth, camera-info and TF messages → [`ingest`] (decode,
 //! validate, sync by stamp) → [`window`] (keyframes; one [`model`] pass per window; [`group`]:
 //! HDBSCAN on the embeddings, semantic prototypes) → [`graph`] (fusion into the persistent map,
-//! scene graph, snapshots) → services and status. [`node`] runs that loop over a [`transport`].
+//! scene graph, snapshots) → [`refer`] (referring queries on a snapshot of the map) → services and
+//! status. [`node`] runs that loop over a [`transport`].
 //!
 //! Modules, bottom up; each imports only modules above it in this list, never one below:
 //!
@@ -17,6 +18,7 @@
 //! | [`group`] | HDBSCAN over instance embeddings, softmax assignment, semantic prototypes and naming |
 //! | [`graph`] | the persistent instance map: fusion across windows, scene graph, snapshots |
 //! | [`window`] | keyframe selection and one window pass (model → lifting → grouping → prototypes) |
+//! | [`refer`] | referring (RSRF): parse, retrieve, reason (built-in or a VLM), evidence, answers |
 //! | [`config`] | assembles the stages' sections into the node's YAML config |
 //! | [`node`] | the loop: input queue, window worker, services, status |
 //! | [`replay`] | publish a rosbag2 MCAP bag as a live robot would |

@@ -16,7 +16,7 @@ use groupforward::model::text::TextEncoder;
 use groupforward::node::services::{refer_request, Shared};
 use groupforward_msgs::gf_msgs::ReferRequest;
 
-use crate::bench::{cube, line_chart};
+use crate::bench_support::{bench_views, cube, line_chart};
 
 /// Expressions over the default vocabulary, one per kind of reasoning.
 const QUERIES: &[&str] = &[
@@ -54,7 +54,7 @@ pub fn refer_bench(sizes: &[usize], rounds: usize, out: &Path) -> Result<()> {
         temperature: DEFAULT_SEMANTIC_TEMPERATURE,
     };
     let encoder = Arc::new(Mutex::new(encoder));
-    let views = crate::bench::bench_views()?;
+    let views = bench_views()?;
     let objects = phrases.len() - 1; // every phrase but `other`
     let mut csv = String::from(
         "instances,snapshot_ms,cold_p50_ms,warm_p50_ms,warm_p99_ms,decision_p50_ms,queries\n",

@@ -3,6 +3,7 @@
 
 mod bench;
 mod bench_refer;
+mod bench_support;
 mod demo;
 mod eval;
 mod eval_refer;

@@ -8,11 +8,9 @@ use groupforward_sim::referring::{Geometry, ViewPose};
 use super::parse::{Count, Query, Relation};
 use super::retrieve::{
     color_distance, color_rgb, geometries, relation_margin, superlative_key, Retrieval, Scored,
+    MIN_SEMANTIC,
 };
 use super::scene::ReferScene;
-
-/// Candidates below this semantic score never fit a concept, however weak the field.
-pub const MIN_SEMANTIC: f32 = 0.05;
 
 /// Boxes overlapping at least this much (3D IoU) are one object.
 pub const DUPLICATE_IOU: f64 = 0.25;

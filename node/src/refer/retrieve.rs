@@ -16,6 +16,9 @@ use super::concepts::Concept;
 use super::parse::{Query, Relation, Superlative};
 use super::scene::{ReferNode, ReferScene};
 
+/// Instances below this semantic score never fit a concept, however weak the field.
+pub const MIN_SEMANTIC: f32 = 0.05;
+
 /// Candidates kept for the reasoner.
 pub const DEFAULT_TOP_K: usize = 8;
 
@@ -173,7 +176,7 @@ pub fn anchor_lists(scene: &ReferScene, anchors: &[Concept]) -> Vec<AnchorList> 
             list.sort_by(|a, b| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0)));
             let best = list.first().map_or(0.0, |a| a.1);
             // An anchor the map does not hold is no anchor: never relate to a stand-in.
-            list.retain(|a| a.1 >= super::reasoner::MIN_SEMANTIC && a.1 >= 0.5 * best);
+            list.retain(|a| a.1 >= MIN_SEMANTIC && a.1 >= 0.5 * best);
             list
         })
         .collect()
