@@ -10,22 +10,33 @@ use anyhow::{Context, Result};
 use groupforward::eval::refer::{ask_scene, held_out_views, ReferRecord, Referrer, SceneTruth};
 use groupforward::eval::run::run_scene;
 use groupforward::window::WindowModels;
-use groupforward_sim::referring::{scene_expressions, Expression};
+use groupforward_sim::referring::{scene_expressions, Expression, Relation, ViewPose};
 use groupforward_sim::scene::SceneFile;
 use groupforward_sim::simulation::Simulation;
 
 use crate::sim::progress_bar;
 use groupforward::config::Config;
 
-/// A line of `--expressions`: the scene's name with the sim's expression record.
+/// A line of `--expressions`: the scene's name, the expression and its target object ids; the
+/// rest of a `sim benchmark` record (relation, anchors, distractors, view) is optional.
 #[derive(Debug, serde::Deserialize)]
 struct ExpressionLine {
     scene: String,
-    #[serde(flatten)]
-    expression: Expression,
+    #[serde(alias = "expression")]
+    text: String,
+    targets: Vec<u16>,
+    #[serde(default)]
+    relation: Option<Relation>,
+    #[serde(default)]
+    anchors: Vec<u16>,
+    #[serde(default)]
+    distractors: usize,
+    #[serde(default)]
+    view: Option<ViewPose>,
 }
 
-fn load_expressions(path: &Path) -> Result<Vec<(String, Expression)>> {
+/// (scene, expression, whether the line named its relation).
+fn load_expressions(path: &Path) -> Result<Vec<(String, Expression, bool)>> {
     let text =
         std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
     text.lines()
@@ -33,9 +44,27 @@ fn load_expressions(path: &Path) -> Result<Vec<(String, Expression)>> {
         .filter(|(_, l)| !l.trim().is_empty())
         .map(|(i, l)| {
             let line: ExpressionLine = serde_json::from_str(l).with_context(|| {
-                format!("{}:{}: not an expression record", path.display(), i + 1)
+                format!(
+                    "{}:{}: expected {{\"scene\", \"text\", \"targets\"}}",
+                    path.display(),
+                    i + 1
+                )
             })?;
-            Ok((line.scene, line.expression))
+            let mut targets = line.targets;
+            targets.sort_unstable();
+            let relation = line.relation.unwrap_or(Relation::Class);
+            let expression = Expression {
+                text: line.text,
+                relation,
+                cardinality: targets.len(),
+                targets,
+                target_class: String::new(),
+                anchors: line.anchors,
+                distractors: line.distractors,
+                view_dependent: line.view.is_some() || relation.view_dependent(),
+                view: line.view,
+            };
+            Ok((line.scene, expression, line.relation.is_some()))
         })
         .collect()
 }
@@ -106,8 +135,8 @@ pub fn eval_refer(
         let asked: Vec<Expression> = match &given {
             Some(lines) => lines
                 .iter()
-                .filter(|(scene, _)| *scene == file.name)
-                .map(|(_, e)| e.clone())
+                .filter(|(scene, _, _)| *scene == file.name)
+                .map(|(_, e, _)| e.clone())
                 .collect(),
             None => scene_expressions(file).map_err(|e| anyhow::anyhow!("{}: {e}", file.name))?,
         };
@@ -125,7 +154,21 @@ pub fn eval_refer(
             objects: &run.objects,
             views: &views,
         };
-        records.extend(ask_scene(&file.name, run.map, &referrer, truth, &asked));
+        let mut asked_records = ask_scene(&file.name, run.map, &referrer, truth, &asked);
+        if let Some(lines) = &given {
+            // A user's expression without a relation is scored in a group of its own.
+            let named: Vec<bool> = lines
+                .iter()
+                .filter(|(scene, _, _)| *scene == file.name)
+                .map(|(_, _, named)| *named)
+                .collect();
+            for (record, named) in asked_records.iter_mut().zip(named) {
+                if !named {
+                    record.relation = "unlabelled".into();
+                }
+            }
+        }
+        records.extend(asked_records);
         bar.inc(1);
     }
     bar.finish_and_clear();

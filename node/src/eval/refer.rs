@@ -129,6 +129,8 @@ pub struct ReferRecord {
     pub view_dependent: bool,
     /// ReferIt3D "hard": more than 2 distractors of the target's class.
     pub hard: bool,
+    /// Objects of the target's class that are not targets (ScanRefer "unique": none).
+    pub distractors: usize,
     pub targets: Vec<u16>,
     /// The objects the answered instances were matched to (0: none).
     pub answered: Vec<u16>,
@@ -322,6 +324,7 @@ pub fn ask_scene(
                     .unwrap_or_default(),
                 view_dependent: e.view_dependent,
                 hard: e.distractors > 2,
+                distractors: e.distractors,
                 targets: e.targets.clone(),
                 correct: response.success && answered == e.targets,
                 answered,
