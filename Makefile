@@ -47,6 +47,7 @@ bench: setup
 	$(CARGO) bench -p groupforward -p groupforward-sim
 	$(CARGO) run --release -p groupforward -- bench grouping --python $(VENV)/bin/python --out node/doc/bench/grouping
 	$(CARGO) run --release -p groupforward -- bench graph --out node/doc/bench/graph
+	$(CARGO) run --release -p groupforward -- bench refer --out node/doc/bench/refer
 
 # Training (never part of CI): PyTorch and friends into train/.venv, and sim datasets for it.
 train-setup:

@@ -54,7 +54,7 @@ impl Default for DemoOptions {
     fn default() -> Self {
         Self {
             scene: SceneFile::builtin("two_chairs").unwrap_or_else(|| unreachable!()),
-            rate: 1.0,
+            rate: 0.5,
         }
     }
 }

@@ -42,14 +42,16 @@ pub struct Shared {
     pub hypotheses: usize,
     /// Windows that built nothing: no view had valid depth.
     pub windows_skipped: u64,
-    /// What referring queries read: `map` as of its last change.
+    /// What referring queries read: a snapshot of `map`, taken by the first query after the map
+    /// changed (`refer_scene_generation` behind `map_generation`), so windows never pay for it.
     pub refer_scene: Arc<ReferScene>,
+    pub refer_scene_generation: u64,
     /// Embeds query phrases (set with the vocabulary once the models load).
     pub text_encoder: Option<Arc<Mutex<TextEncoder>>>,
     pub refer: ReferSection,
     /// The map's frame (answers' clouds are expressed in it).
     pub world_frame: String,
-    /// Bumped whenever the map is replaced (load_map): a snapshot of an older map is discarded.
+    /// Bumped whenever the map changes (a fused window, load_map).
     pub map_generation: u64,
 }
 
@@ -102,23 +104,35 @@ impl Shared {
     /// Replace the map and refresh the instance messages.
     pub fn set_map(&mut self, map: SceneMap) {
         self.map = map;
-        self.map_generation += 1;
         self.refresh_instances();
     }
 
-    /// Rebuild the instance messages and the referring snapshot after the map changed in place.
+    /// Rebuild the instance messages after the map changed in place; the referring snapshot is
+    /// retaken by the next query.
     pub fn refresh_instances(&mut self) {
-        self.refresh_messages();
-        match ReferScene::build(self.map.clone(), self.vocabulary.as_ref()) {
-            Ok(scene) => self.refer_scene = Arc::new(scene),
-            Err(e) => tracing::warn!("referring snapshot not refreshed: {e}"),
-        }
-    }
-
-    /// Rebuild the instance messages only (the snapshot is rebuilt by the caller, off the lock).
-    pub fn refresh_messages(&mut self) {
         self.instances = instance_messages(&self.map, self.vocabulary.as_ref(), self.hypotheses);
+        self.map_generation += 1;
     }
+}
+
+/// The referring snapshot of the current map: the stored one, or (after the map changed) a new
+/// one, built from a copy of the map without holding the lock.
+pub fn current_snapshot(shared: &Mutex<Shared>) -> std::result::Result<Arc<ReferScene>, String> {
+    let (map, vocabulary, generation) = {
+        let s = shared.lock().map_err(|e| e.to_string())?;
+        if s.refer_scene_generation == s.map_generation {
+            return Ok(s.refer_scene.clone());
+        }
+        (s.map.clone(), s.vocabulary.clone(), s.map_generation)
+    };
+    let scene = Arc::new(ReferScene::build(map, vocabulary.as_ref()).map_err(|e| e.to_string())?);
+    let mut s = shared.lock().map_err(|e| e.to_string())?;
+    // Another query may have stored a newer one meanwhile: keep the newest.
+    if generation >= s.refer_scene_generation {
+        s.refer_scene = scene.clone();
+        s.refer_scene_generation = generation;
+    }
+    Ok(scene)
 }
 
 fn map_path<'a>(shared: &'a Shared, requested: &'a str) -> std::result::Result<&'a str, String> {
@@ -265,9 +279,12 @@ pub fn refer_request(shared: &Mutex<Shared>, request: &ReferRequest) -> ReferRes
         Err(message) => return failure(message),
     };
     // Read what the query needs, then answer without holding the map's lock.
-    let (scene, encoder, section, world_frame) = match shared.lock() {
+    let scene = match current_snapshot(shared) {
+        Ok(scene) => scene,
+        Err(e) => return failure(format!("no snapshot of the map: {e}")),
+    };
+    let (encoder, section, world_frame) = match shared.lock() {
         Ok(s) => (
-            s.refer_scene.clone(),
             s.text_encoder.clone(),
             s.refer.clone(),
             s.world_frame.clone(),
@@ -316,7 +333,7 @@ pub fn refer_request(shared: &Mutex<Shared>, request: &ReferRequest) -> ReferRes
         let images = if reasoner == "vlm" {
             section.vlm.max_images
         } else {
-            1 + section.top_k
+            1 + 3 * section.top_k
         };
         let evidence = refer::evidence::build(&scene, &answer, &all, images);
         if reasoner == "vlm" {

@@ -9,7 +9,6 @@ use std::time::Instant;
 use super::services::Shared;
 use crate::config::Config;
 use crate::frame::SyncedFrame;
-use crate::refer::ReferScene;
 use crate::window::WindowModels;
 
 /// Start the thread that loads the models, runs window passes and fuses their instances into the
@@ -67,22 +66,7 @@ pub(super) fn start_window_worker(
                     let found = output.instances.len();
                     match s.map.fuse(output.instances, &output.views, stamp) {
                         Ok(report) => {
-                            s.refresh_messages();
-                            // The referring snapshot renders the map: built off the lock so
-                            // services keep answering meanwhile.
-                            let (map, vocabulary) = (s.map.clone(), s.vocabulary.clone());
-                            let generation = s.map_generation;
-                            drop(s);
-                            let snapshot = ReferScene::build(map, vocabulary.as_ref());
-                            let Ok(mut s) = shared.lock() else { return };
-                            match snapshot {
-                                // A map loaded meanwhile has its own snapshot already.
-                                Ok(scene) if s.map_generation == generation => {
-                                    s.refer_scene = Arc::new(scene);
-                                }
-                                Ok(_) => {}
-                                Err(e) => tracing::warn!("referring snapshot not refreshed: {e}"),
-                            }
+                            s.refresh_instances();
                             tracing::info!(
                                 instances = found,
                                 born = report.born,

@@ -1,7 +1,8 @@
 //! The evidence bundle a reasoner sees (DESIGN §5.7): per candidate the structured node as JSON
 //! (names, centre, extent, volume, colour, visibility, its nearest neighbours), and images
 //! rendered from the map with the rasterizer at the newest keyframe: a global overview with the
-//! candidates' outlines numbered (the current choice drawn heavier), and one image per candidate with its mask highlighted. Written
+//! candidates' outlines numbered (the current choice drawn heavier), per candidate its mask
+//! highlighted, an object-centred crop and its local context. Written
 //! as PNG + JSON by `--evidence DIR` so a person can look at what the reasoner saw.
 
 use std::path::Path;
@@ -36,7 +37,8 @@ const PALETTE: [[u8; 3]; 8] = [
 #[derive(Debug, Clone, PartialEq)]
 pub struct Evidence {
     pub json: serde_json::Value,
-    /// (name, image): `overview` first, then `candidate_<n>`.
+    /// (name, image): `overview` first, then `candidate_<n>` (highlights), then
+    /// `candidate_<n>_crop` and `candidate_<n>_context`.
     pub images: Vec<(String, RgbImage)>,
 }
 
@@ -129,17 +131,22 @@ fn images(
             .iter()
             .position(|c| scene.nodes[c.index].id == id)
     };
+    // Colour, then one channel per candidate: a pixel is a candidate's where its channel carries
+    // most of the alpha (a single blended owner number would mislabel edges between instances).
+    let k_count = answer.candidates.len();
+    let channels = 3 + k_count;
     for (id, g) in gaussians {
-        let owner = candidate_of(id).map_or(0.0, |k| (k + 1) as f32);
+        let owner = candidate_of(id);
         all.extend_geometry(g);
         for c in &g.colors {
-            features.extend_from_slice(&[c.x, c.y, c.z, owner]);
+            features.extend_from_slice(&[c.x, c.y, c.z]);
+            features.extend((0..k_count).map(|k| if owner == Some(k) { 1.0 } else { 0.0 }));
         }
     }
     let Ok(r) = render(
         &all,
         &features,
-        4,
+        channels,
         &view.camera,
         &view.world_from_camera.inverse(),
         &RasterSettings::default(),
@@ -151,17 +158,16 @@ fn images(
     let mut base = vec![0u8; pixels * 3];
     let mut owner = vec![0usize; pixels];
     for p in 0..pixels {
-        let a = r.alpha[p].max(1e-6);
-        let f = &r.features[p * 4..p * 4 + 4];
+        let f = &r.features[p * channels..(p + 1) * channels];
         for c in 0..3 {
-            base[p * 3 + c] = ((f[c] / a.max(1.0)).clamp(0.0, 1.0) * 255.0) as u8;
+            base[p * 3 + c] = ((f[c] / r.alpha[p].max(1.0)).clamp(0.0, 1.0) * 255.0) as u8;
         }
-        // The owner channel is a blend at edges: round to the nearest candidate number.
-        owner[p] = if r.alpha[p] > 0.5 {
-            (f[3] / a).round().max(0.0) as usize
-        } else {
-            0
-        };
+        owner[p] = f[3..]
+            .iter()
+            .enumerate()
+            .max_by(|a, b| a.1.total_cmp(b.1))
+            .filter(|(_, v)| **v > 0.5)
+            .map_or(0, |(k, _)| k + 1);
     }
     let mut overview = RgbImage {
         width: w as u32,
@@ -212,8 +218,50 @@ fn images(
             },
         ));
     }
+    // Then per candidate an object-centred crop and its local context (three times the box).
+    let base = RgbImage {
+        width: w as u32,
+        height: h as u32,
+        data: base,
+    };
+    for (scale, name) in [(1.2, "crop"), (3.0, "context")] {
+        for (k, c) in answer.candidates.iter().enumerate() {
+            if out.len() >= max_images {
+                break;
+            }
+            if let Some((lo, hi)) = projected_box(&scene.nodes[c.index], &view) {
+                let centre = (lo + hi) / 2.0;
+                let half = (hi - lo) * scale / 2.0;
+                if let Some(image) = crop(&base, centre - half, centre + half) {
+                    out.push((format!("candidate_{}_{name}", k + 1), image));
+                }
+            }
+        }
+    }
     out.truncate(max_images);
     out
+}
+
+/// The part of `image` inside [lo, hi] (clamped); None when that is empty.
+fn crop(image: &RgbImage, lo: DVec2, hi: DVec2) -> Option<RgbImage> {
+    let (w, h) = (f64::from(image.width), f64::from(image.height));
+    let x0 = lo.x.clamp(0.0, w) as usize;
+    let y0 = lo.y.clamp(0.0, h) as usize;
+    let x1 = hi.x.clamp(0.0, w).ceil() as usize;
+    let y1 = hi.y.clamp(0.0, h).ceil() as usize;
+    if x1 <= x0 || y1 <= y0 {
+        return None;
+    }
+    let stride = image.width as usize * 3;
+    let mut data = Vec::with_capacity((x1 - x0) * (y1 - y0) * 3);
+    for y in y0..y1 {
+        data.extend_from_slice(&image.data[y * stride + x0 * 3..y * stride + x1 * 3]);
+    }
+    Some(RgbImage {
+        width: (x1 - x0) as u32,
+        height: (y1 - y0) as u32,
+        data,
+    })
 }
 
 /// The image rectangle of a node's box corners in `view` (None: behind the camera or outside).
@@ -349,4 +397,34 @@ pub fn write(dir: &Path, stem: &str, evidence: &Evidence) -> std::io::Result<()>
         std::fs::write(dir.join(format!("{stem}_{name}.png")), bytes)?;
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn crops_are_clamped_to_the_image_and_empty_ones_are_none() {
+        let image = RgbImage {
+            width: 4,
+            height: 3,
+            data: (0..36).collect(),
+        };
+        let c = crop(&image, DVec2::new(1.0, 1.0), DVec2::new(3.0, 2.0)).unwrap();
+        assert_eq!((c.width, c.height), (2, 1));
+        assert_eq!(c.data, [15, 16, 17, 18, 19, 20]);
+        let all = crop(&image, DVec2::splat(-5.0), DVec2::splat(50.0)).unwrap();
+        assert_eq!(all, image);
+        assert!(crop(&image, DVec2::new(2.0, 2.0), DVec2::new(2.0, 3.0)).is_none());
+        assert!(crop(&image, DVec2::splat(f64::NAN), DVec2::splat(f64::NAN)).is_none());
+    }
+
+    #[test]
+    fn stems_are_the_expression_s_words() {
+        assert_eq!(
+            stem("The chair, closest to the lamp!"),
+            "the_chair_closest_to_the_lamp"
+        );
+        assert_eq!(stem("?!"), "query");
+    }
 }

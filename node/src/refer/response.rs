@@ -113,15 +113,23 @@ pub fn label_image(instances: &[&Gaussians], keyframe: &Keyframe, scene_depth: &
         keyframe.camera.height as usize,
     );
     let mut all = Gaussians::with_dims(0, 0);
+    let count = instances.len();
+    // One channel per instance: a pixel is the instance's whose channel carries most of it (a
+    // single blended owner number would mislabel the edge between two instances).
     let mut owner = Vec::new();
     for (k, g) in instances.iter().enumerate() {
         all.extend_geometry(g);
-        owner.extend(std::iter::repeat_n((k + 1) as f32, g.len()));
+        for _ in 0..g.len() {
+            owner.extend((0..count).map(|j| if j == k { 1.0f32 } else { 0.0 }));
+        }
+    }
+    if count == 0 {
+        return vec![0; w * h];
     }
     let Ok(r) = render(
         &all,
         &owner,
-        1,
+        count,
         &keyframe.camera,
         &keyframe.world_from_camera.inverse(),
         &RasterSettings::default(),
@@ -133,13 +141,14 @@ pub fn label_image(instances: &[&Gaussians], keyframe: &Keyframe, scene_depth: &
             let d = r.depth[p];
             let reference = scene_depth.get(p).copied().unwrap_or(0.0);
             let unoccluded = reference <= 0.0 || d <= reference + MASK_DEPTH_TOLERANCE;
-            if r.alpha[p] > MASK_ALPHA && unoccluded {
-                (r.features[p] / r.alpha[p])
-                    .round()
-                    .clamp(0.0, f32::from(u16::MAX)) as u16
-            } else {
-                0
+            if r.alpha[p] <= MASK_ALPHA || !unoccluded {
+                return 0;
             }
+            r.features[p * count..(p + 1) * count]
+                .iter()
+                .enumerate()
+                .max_by(|a, b| a.1.total_cmp(b.1))
+                .map_or(0, |(k, _)| (k + 1).min(usize::from(u16::MAX)) as u16)
         })
         .collect()
 }
@@ -235,5 +244,92 @@ pub fn response(
             .collect(),
         reasoner_used: answer.reasoner_used.clone(),
         trace: answer.trace.clone(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::recon::camera::Camera;
+    use crate::recon::Rigid;
+    use glam::{Quat, Vec3};
+
+    /// A square wall of Gaussians at depth `z` (camera frame = world frame) spanning x0..x1.
+    fn wall(x0: f32, x1: f32, z: f32) -> Gaussians {
+        let mut g = Gaussians::with_dims(0, 0);
+        let mut x = x0;
+        while x <= x1 {
+            let mut y = -0.5;
+            while y <= 0.5 {
+                g.push(
+                    Vec3::new(x, y, z),
+                    0.99,
+                    Vec3::splat(0.02),
+                    Quat::IDENTITY,
+                    Vec3::ONE,
+                    &[],
+                    &[],
+                );
+                y += 0.02;
+            }
+            x += 0.02;
+        }
+        g
+    }
+
+    fn keyframe() -> Keyframe {
+        Keyframe {
+            stamp_nanos: 0,
+            camera: Camera::from_fov(64, 48, 1.2).unwrap(),
+            world_from_camera: Rigid::default(),
+        }
+    }
+
+    #[test]
+    fn adjacent_instances_get_their_own_labels_and_no_third_at_the_seam() {
+        let (left, right) = (wall(-0.6, 0.0, 2.0), wall(0.02, 0.6, 2.0));
+        let labels = label_image(&[&left, &right], &keyframe(), &[]);
+        let count = |v: u16| labels.iter().filter(|l| **l == v).count();
+        assert!(
+            count(1) > 100 && count(2) > 100,
+            "{} {}",
+            count(1),
+            count(2)
+        );
+        assert!(labels.iter().all(|l| *l <= 2));
+        // Row through the middle: left of centre is 1, right of centre is 2.
+        let row = &labels[24 * 64..25 * 64];
+        assert_eq!(row[20], 1);
+        assert_eq!(row[44], 2);
+    }
+
+    #[test]
+    fn what_the_map_hides_is_cut_from_the_mask_and_nothing_renders_nothing() {
+        let behind = wall(-0.3, 0.3, 3.0);
+        // The map's depth says a nearer surface (at 1 m) covers the left half of the image.
+        let depth: Vec<f32> = (0..64 * 48)
+            .map(|p| if p % 64 < 32 { 1.0 } else { 0.0 })
+            .collect();
+        let labels = label_image(&[&behind], &keyframe(), &depth);
+        let row = &labels[24 * 64..25 * 64];
+        assert_eq!(row[28], 0, "occluded");
+        assert_eq!(row[36], 1, "visible");
+        assert!(label_image(&[], &keyframe(), &[]).iter().all(|l| *l == 0));
+    }
+
+    #[test]
+    fn clouds_carry_every_point_with_its_instance_id() {
+        let g = wall(0.0, 0.04, 1.0);
+        let cloud = instance_cloud("map", Time::default(), &[(42, &g), (7, &g)]);
+        assert_eq!(cloud.width as usize, 2 * g.len());
+        assert_eq!(cloud.data.len(), (cloud.point_step * cloud.width) as usize);
+        let id_at = |i: usize| {
+            let o = i * cloud.point_step as usize + 16;
+            u32::from_le_bytes(cloud.data[o..o + 4].try_into().unwrap())
+        };
+        assert_eq!(id_at(0), 42);
+        assert_eq!(id_at(g.len()), 7);
+        assert_eq!(numeric_id("inst_000042"), 42);
+        assert_eq!(numeric_id("garbage"), 0);
     }
 }
