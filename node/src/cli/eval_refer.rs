@@ -179,13 +179,13 @@ fn write_outputs(records: &[ReferRecord], out: &Path) -> Result<()> {
     let mut csv = std::io::BufWriter::new(std::fs::File::create(out.join("expressions.csv"))?);
     writeln!(
         csv,
-        "scene,expression,relation,view_dependent,hard,targets,answered,correct,topk_hit,targets_in_map,iou,mask_iou,millis,reasoner,message"
+        "scene,expression,relation,view_dependent,hard,targets,answered,correct,topk_hit,targets_in_map,anchors_in_map,iou,mask_iou,millis,reasoner,message"
     )?;
     let ids = |v: &[u16]| v.iter().map(u16::to_string).collect::<Vec<_>>().join(" ");
     for r in records {
         writeln!(
             csv,
-            "{},\"{}\",{},{},{},{},{},{},{},{},{:.4},{},{:.3},{},\"{}\"",
+            "{},\"{}\",{},{},{},{},{},{},{},{},{},{:.4},{},{:.3},{},\"{}\"",
             r.scene,
             r.expression.replace('"', "'"),
             r.relation,
@@ -196,6 +196,7 @@ fn write_outputs(records: &[ReferRecord], out: &Path) -> Result<()> {
             r.correct,
             r.topk_hit,
             r.targets_in_map,
+            r.anchors_in_map,
             r.iou,
             r.mask_iou.map_or(String::new(), |v| format!("{v:.4}")),
             r.millis,
