@@ -10,9 +10,10 @@ use glam::DVec3;
 use groupforward::frame::RgbImage;
 use groupforward::recon::boxes::OrientedBox;
 use groupforward::refer::evidence::Evidence;
-use groupforward::refer::vlm::{VlmClient, VlmSection};
+use groupforward::refer::vlm::{VlmClient, VlmError, VlmSection};
 use groupforward::refer::{
-    answer, with_vlm, Answer, Embed, ReferNode, ReferScene, ReferSection, Request,
+    answer, with_vlm, Answer, Count, Embed, Query, ReferNode, ReferScene, ReferSection, Relation,
+    Request,
 };
 use groupforward_tests::{ScriptedChatServer, ScriptedReply};
 
@@ -250,4 +251,68 @@ fn cardinality_is_checked_for_plural_expressions() {
     );
     assert_eq!(a.reasoner_used, "vlm");
     assert_eq!(a.chosen.len(), 2);
+}
+
+fn llm_parse(reply: ScriptedReply) -> (Result<Query, VlmError>, ScriptedChatServer) {
+    let server = ScriptedChatServer::start(vec![reply]);
+    let client = VlmClient::new(&VlmSection {
+        endpoint: server.url.clone(),
+        timeout_secs: 2.0,
+        ..VlmSection::default()
+    })
+    .unwrap();
+    (client.parse("the seat nearest the bin"), server)
+}
+
+#[test]
+fn an_llm_decomposition_is_validated_against_the_parser_s_schema() {
+    let (query, server) = llm_parse(ScriptedReply::content(
+        r#"{"target": "Chair", "function": false, "count": "one", "color": null, "superlative": null, "relation": "closest", "anchors": ["trash bin"]}"#,
+    ));
+    let query = query.unwrap();
+    assert_eq!(query.target, "chair");
+    assert_eq!(query.relation, Some(Relation::Closest));
+    assert_eq!(query.anchors, ["trash bin"]);
+    assert_eq!(query.count, Count::One);
+    assert_eq!(query.text, "the seat nearest the bin");
+    let body: serde_json::Value =
+        serde_json::from_str(&server.requests.lock().unwrap()[0].1).unwrap();
+    assert_eq!(body["messages"][1]["content"], "the seat nearest the bin");
+    assert!(
+        body["response_format"]["json_schema"]["schema"]["properties"]["relation"]["enum"]
+            .as_array()
+            .unwrap()
+            .contains(&serde_json::json!("between"))
+    );
+    let (query, _server) = llm_parse(ScriptedReply::content(
+        r#"{"target": "chairs", "count": "exactly", "n": 2, "anchors": []}"#,
+    ));
+    assert_eq!(query.unwrap().count, Count::Exactly(2));
+}
+
+#[test]
+fn an_invalid_decomposition_is_an_error_the_rule_parser_then_answers() {
+    let bad = [
+        r#"{"target": "", "count": "one", "anchors": []}"#,
+        r#"{"target": "chair", "count": "some", "anchors": []}"#,
+        r#"{"target": "chair", "count": "exactly", "anchors": []}"#,
+        r#"{"target": "chair", "count": "one", "relation": "inside", "anchors": ["box"]}"#,
+        r#"{"target": "chair", "count": "one", "relation": "between", "anchors": ["lamp"]}"#,
+        r#"{"target": "chair", "count": "one", "relation": null, "anchors": ["lamp"]}"#,
+        r#"{"target": "chair", "count": "one", "color": "ultraviolet", "anchors": []}"#,
+        "a chair, probably",
+    ];
+    for content in bad {
+        let (query, _server) = llm_parse(ScriptedReply::content(content));
+        assert!(
+            matches!(query, Err(VlmError::NotJson(_))),
+            "{content}: {query:?}"
+        );
+    }
+    let (query, _server) = llm_parse(ScriptedReply {
+        status: 503,
+        body: "busy".into(),
+        delay: Duration::ZERO,
+    });
+    assert!(matches!(query, Err(VlmError::Http { status: 503, .. })));
 }

@@ -259,6 +259,26 @@ fn request_view(request: &ReferRequest) -> std::result::Result<Option<ViewPose>,
     Ok(Some(ViewPose::new(0, rotation.normalize(), position)))
 }
 
+/// The expression parsed: by the LLM when `refer.llm_parse` is on and its decomposition validates,
+/// else by the rule parser; with a note for the trace.
+fn parse_query(
+    expression: &str,
+    section: &ReferSection,
+) -> std::result::Result<(refer::Query, Option<String>), refer::ParseError> {
+    if !section.llm_parse {
+        return Ok((refer::parse(expression)?, None));
+    }
+    let decomposed =
+        refer::vlm::VlmClient::new(&section.vlm).and_then(|client| client.parse(expression));
+    Ok(match decomposed {
+        Ok(query) => (query, Some("parsed by the LLM".into())),
+        Err(e) => (
+            refer::parse(expression)?,
+            Some(format!("LLM parse failed ({e}): rule parser")),
+        ),
+    })
+}
+
 /// Answer a referring request on the node's current snapshot (the service's work, CDR aside).
 pub fn refer_request(shared: &Mutex<Shared>, request: &ReferRequest) -> ReferResponse {
     let failure = |message: String| {
@@ -308,9 +328,14 @@ pub fn refer_request(shared: &Mutex<Shared>, request: &ReferRequest) -> ReferRes
         let Ok(mut encoder) = encoder.lock() else {
             return failure("the text encoder's lock is poisoned".into());
         };
-        refer::answer(
+        let (query, parsed_by) = match parse_query(&request.expression, &section) {
+            Ok(parsed) => parsed,
+            Err(e) => return failure(refer::ReferError::from(e).to_string()),
+        };
+        refer::answer_query(
             &scene,
             &mut *encoder,
+            query,
             &refer::Request {
                 expression: request.expression.clone(),
                 view,
@@ -318,6 +343,12 @@ pub fn refer_request(shared: &Mutex<Shared>, request: &ReferRequest) -> ReferRes
             },
             &section,
         )
+        .map(|mut answer| {
+            if let Some(note) = parsed_by {
+                answer.trace = format!("{note}; {}", answer.trace);
+            }
+            answer
+        })
     };
     let mut answer = match answered {
         Ok(answer) => answer,

@@ -41,6 +41,9 @@ pub struct ReferSection {
     pub vlm: vlm::VlmSection,
     /// Write each answer's evidence bundle (PNG + JSON) here ("" = not written).
     pub evidence_dir: String,
+    /// Decompose expressions with the LLM behind `vlm.endpoint` (validated against the parser's
+    /// schema; the rule parser answers whenever it fails, and the trace says so).
+    pub llm_parse: bool,
 }
 
 impl Default for ReferSection {
@@ -51,6 +54,7 @@ impl Default for ReferSection {
             reasoner: "builtin".into(),
             vlm: vlm::VlmSection::default(),
             evidence_dir: String::new(),
+            llm_parse: false,
         }
     }
 }
@@ -133,7 +137,17 @@ pub fn answer(
     request: &Request,
     section: &ReferSection,
 ) -> Result<Answer, ReferError> {
-    let query = parse(&request.expression)?;
+    answer_query(scene, embed, parse(&request.expression)?, request, section)
+}
+
+/// Answer an already parsed `query` (the rule parser's or a validated LLM decomposition).
+pub fn answer_query(
+    scene: &ReferScene,
+    embed: &mut dyn Embed,
+    query: Query,
+    request: &Request,
+    section: &ReferSection,
+) -> Result<Answer, ReferError> {
     if scene.nodes.is_empty() {
         return Err(ReferError::EmptyMap);
     }

@@ -12,7 +12,7 @@ use serde::{Deserialize, Serialize};
 use serde_json::json;
 
 use super::evidence::{png, Evidence};
-use super::parse::Count;
+use super::parse::{Count, Query, Relation, Superlative, COLOR_WORDS};
 
 /// The `refer.vlm` section of the node's config.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -129,27 +129,36 @@ impl VlmClient {
             },
             "required": ["ids"],
         });
+        self.chat_body(
+            "You resolve referring expressions to objects in a 3D map. Answer only with JSON.",
+            json!(content),
+            "referring_answer",
+            schema,
+        )
+    }
+
+    /// A chat completions body: a system prompt, one user message, a JSON-schema answer.
+    fn chat_body(
+        &self,
+        system: &str,
+        user: serde_json::Value,
+        name: &str,
+        schema: serde_json::Value,
+    ) -> serde_json::Value {
         json!({
             "model": self.section.model,
             "messages": [
-                {"role": "system", "content": "You resolve referring expressions to objects in a 3D map. Answer only with JSON."},
-                {"role": "user", "content": content},
+                {"role": "system", "content": system},
+                {"role": "user", "content": user},
             ],
             "temperature": 0,
             "max_tokens": 256,
-            "response_format": {"type": "json_schema", "json_schema": {"name": "referring_answer", "schema": schema}},
+            "response_format": {"type": "json_schema", "json_schema": {"name": name, "schema": schema}},
         })
     }
 
-    /// Ask the VLM; a validated choice or why not.
-    pub fn choose(
-        &self,
-        expression: &str,
-        count: Count,
-        evidence: &Evidence,
-        candidate_ids: &[String],
-    ) -> Result<VlmChoice, VlmError> {
-        let body = self.request_body(expression, count, evidence, candidate_ids);
+    /// POST a chat completions `body`; the response body of a 200 answer.
+    fn complete(&self, body: &serde_json::Value) -> Result<String, VlmError> {
         let url = format!(
             "{}/chat/completions",
             self.section.endpoint.trim_end_matches('/')
@@ -165,31 +174,107 @@ impl VlmClient {
             request = request.header("Authorization", &format!("Bearer {key}"));
         }
         let timeout = Duration::from_secs_f64(self.section.timeout_secs.max(0.001));
-        let mut response = request.send(body.to_string()).map_err(|e| match e {
+        let transport = |e: ureq::Error| match e {
             ureq::Error::Timeout(_) => VlmError::Timeout(timeout),
             other => VlmError::Transport(other.to_string()),
-        })?;
+        };
+        let mut response = request.send(body.to_string()).map_err(transport)?;
         let status = response.status().as_u16();
-        let text = response.body_mut().read_to_string().map_err(|e| match e {
-            ureq::Error::Timeout(_) => VlmError::Timeout(timeout),
-            other => VlmError::Transport(other.to_string()),
-        })?;
+        let text = response.body_mut().read_to_string().map_err(transport)?;
         if status != 200 {
             return Err(VlmError::Http {
                 status,
                 body: text.chars().take(200).collect(),
             });
         }
+        Ok(text)
+    }
+
+    /// Decompose `expression` with the LLM into the parser's schema, validated; an error says why
+    /// (the caller then uses the rule parser).
+    pub fn parse(&self, expression: &str) -> Result<Query, VlmError> {
+        let options = |names: Vec<String>| -> Vec<serde_json::Value> {
+            names
+                .into_iter()
+                .map(|n| json!(n))
+                .chain([serde_json::Value::Null])
+                .collect()
+        };
+        let schema = json!({
+            "type": "object",
+            "properties": {
+                "target": {"type": "string"},
+                "function": {"type": "boolean"},
+                "count": {"type": "string", "enum": ["one", "all", "exactly"]},
+                "n": {"type": "integer", "minimum": 2},
+                "color": {"enum": options(COLOR_WORDS.iter().map(|c| (*c).to_owned()).collect())},
+                "superlative": {"enum": options(ALL_SUPERLATIVES.iter().map(snake).collect())},
+                "relation": {"enum": options(ALL_RELATIONS.iter().map(snake).collect())},
+                "anchors": {"type": "array", "items": {"type": "string"}},
+            },
+            "required": ["target", "count", "anchors"],
+        });
+        let body = self.chat_body(
+            "Decompose a referring expression about objects in a room into JSON: the target (a \
+             noun phrase, or for a function what one does with it), how many are meant, colour, \
+             superlative, at most one spatial relation and its anchor objects (two for between). \
+             Answer only with JSON.",
+            json!(expression),
+            "referring_parse",
+            schema,
+        );
+        let text = self.complete(&body)?;
+        parse_decomposition(&text, expression)
+    }
+
+    /// Ask the VLM; a validated choice or why not.
+    pub fn choose(
+        &self,
+        expression: &str,
+        count: Count,
+        evidence: &Evidence,
+        candidate_ids: &[String],
+    ) -> Result<VlmChoice, VlmError> {
+        let body = self.request_body(expression, count, evidence, candidate_ids);
+        let text = self.complete(&body)?;
         parse_choice(&text, count, candidate_ids)
     }
 }
 
-/// Validate a chat completions response body.
-pub fn parse_choice(
-    body: &str,
-    count: Count,
-    candidate_ids: &[String],
-) -> Result<VlmChoice, VlmError> {
+const ALL_RELATIONS: [Relation; 11] = [
+    Relation::Closest,
+    Relation::Farthest,
+    Relation::Above,
+    Relation::Below,
+    Relation::On,
+    Relation::Supporting,
+    Relation::Left,
+    Relation::Right,
+    Relation::Front,
+    Relation::Behind,
+    Relation::Between,
+];
+
+const ALL_SUPERLATIVES: [Superlative; 7] = [
+    Superlative::Biggest,
+    Superlative::Smallest,
+    Superlative::Tallest,
+    Superlative::Highest,
+    Superlative::Lowest,
+    Superlative::Leftmost,
+    Superlative::Rightmost,
+];
+
+/// The snake_case name serde gives an enum value.
+fn snake<T: Serialize>(value: &T) -> String {
+    serde_json::to_value(value)
+        .ok()
+        .and_then(|v| v.as_str().map(str::to_owned))
+        .unwrap_or_default()
+}
+
+/// The JSON object in a chat completions body's first message (markdown fences tolerated).
+fn message_json(body: &str) -> Result<serde_json::Value, VlmError> {
     let reply: serde_json::Value =
         serde_json::from_str(body).map_err(|e| VlmError::NotJson(format!("response body: {e}")))?;
     let content = reply["choices"][0]["message"]["content"]
@@ -202,8 +287,84 @@ pub fn parse_choice(
         .trim_start_matches("```")
         .trim_end_matches("```")
         .trim();
-    let answer: serde_json::Value = serde_json::from_str(content)
-        .map_err(|e| VlmError::NotJson(format!("message content: {e}")))?;
+    serde_json::from_str(content).map_err(|e| VlmError::NotJson(format!("message content: {e}")))
+}
+
+/// Validate an LLM decomposition against the parser's schema.
+pub fn parse_decomposition(body: &str, expression: &str) -> Result<Query, VlmError> {
+    let v = message_json(body)?;
+    let invalid = |what: String| VlmError::NotJson(format!("decomposition: {what}"));
+    let target = v["target"]
+        .as_str()
+        .map(str::trim)
+        .filter(|t| !t.is_empty() && t.len() <= super::parse::MAX_EXPRESSION_CHARS)
+        .ok_or_else(|| invalid("no target".into()))?
+        .to_lowercase();
+    let count = match v["count"].as_str() {
+        Some("one") => Count::One,
+        Some("all") => Count::All,
+        Some("exactly") => Count::Exactly(
+            v["n"]
+                .as_u64()
+                .filter(|n| (2..=1000).contains(n))
+                .ok_or_else(|| invalid("`exactly` needs n >= 2".into()))? as usize,
+        ),
+        other => return Err(invalid(format!("count {other:?}"))),
+    };
+    let named = |field: &str, names: &[String]| -> Result<Option<usize>, VlmError> {
+        match &v[field] {
+            serde_json::Value::Null => Ok(None),
+            serde_json::Value::String(s) => names
+                .iter()
+                .position(|n| n == s)
+                .map(Some)
+                .ok_or_else(|| invalid(format!("{field} {s:?}"))),
+            other => Err(invalid(format!("{field} {other}"))),
+        }
+    };
+    let relations: Vec<String> = ALL_RELATIONS.iter().map(snake).collect();
+    let superlatives: Vec<String> = ALL_SUPERLATIVES.iter().map(snake).collect();
+    let colors: Vec<String> = COLOR_WORDS.iter().map(|c| (*c).to_owned()).collect();
+    let relation = named("relation", &relations)?.map(|i| ALL_RELATIONS[i]);
+    let superlative = named("superlative", &superlatives)?.map(|i| ALL_SUPERLATIVES[i]);
+    let color = named("color", &colors)?.map(|i| colors[i].clone());
+    let anchors: Vec<String> = v["anchors"]
+        .as_array()
+        .ok_or_else(|| invalid("no anchors array".into()))?
+        .iter()
+        .map(|a| {
+            a.as_str()
+                .map(|s| s.trim().to_lowercase())
+                .filter(|s| !s.is_empty())
+        })
+        .collect::<Option<_>>()
+        .ok_or_else(|| invalid("an anchor is not a phrase".into()))?;
+    let needed = relation.map_or(0, Relation::anchors_needed);
+    if anchors.len() != needed {
+        return Err(invalid(format!(
+            "{} anchor(s) for relation {relation:?}",
+            anchors.len()
+        )));
+    }
+    Ok(Query {
+        text: expression.trim().to_owned(),
+        target,
+        function: v["function"].as_bool().unwrap_or(false),
+        count,
+        color,
+        superlative,
+        relation,
+        anchors,
+    })
+}
+
+/// Validate a chat completions response body.
+pub fn parse_choice(
+    body: &str,
+    count: Count,
+    candidate_ids: &[String],
+) -> Result<VlmChoice, VlmError> {
+    let answer = message_json(body)?;
     let ids: Vec<String> = answer["ids"]
         .as_array()
         .ok_or_else(|| VlmError::NotJson("no `ids` array".into()))?
