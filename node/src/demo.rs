@@ -233,8 +233,13 @@ pub fn run_demo(options: &DemoOptions) -> Result<DemoReport> {
         &std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../models"),
     );
     // Every answer's evidence bundle (PNG + JSON) lands here for a person to look at.
-    let evidence_dir =
-        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../target/demo/evidence");
+    let evidence_dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .map_or_else(
+            || std::path::PathBuf::from("."),
+            std::path::Path::to_path_buf,
+        )
+        .join("target/demo/evidence");
     let _ = std::fs::remove_dir_all(&evidence_dir);
     config.refer.evidence_dir = evidence_dir.display().to_string();
     let embedded = ZenohSection {
