@@ -1,5 +1,6 @@
 //! `groupforward query "the chair closest to the lamp"`: ask a running node through its `Refer`
-//! service over zenoh, as any ROS 2 client on rmw_zenoh would, and print the answer.
+//! service over zenoh, as any ROS 2 client on rmw_zenoh would, and print the answer (exit status
+//! 1 when the node answers with a refusal).
 
 use std::time::Duration;
 
@@ -48,6 +49,10 @@ pub fn run(args: QueryArgs) -> Result<()> {
     )
     .with_context(|| format!("calling {service}"))?;
     print_answer(&args.expression, &answer);
+    // Scripts can tell an answer from a refusal by the exit status.
+    if !answer.success {
+        std::process::exit(1);
+    }
     Ok(())
 }
 
