@@ -6,9 +6,8 @@
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
-use glam::DVec3;
 use groupforward_msgs::cdr;
-use groupforward_msgs::geometry_msgs::{Point, Pose, Quaternion, Vector3};
+use groupforward_msgs::geometry_msgs::{Point, Pose, Quaternion};
 use groupforward_msgs::gf_msgs::{Instance, ReferRequest, ReferResponse};
 use groupforward_msgs::vision_msgs::BoundingBox3D;
 use groupforward_sim::referring::Expression;
@@ -26,7 +25,7 @@ use crate::recon::camera::Camera;
 use crate::recon::gaussians::Gaussians;
 use crate::recon::raster::{render, RasterSettings};
 use crate::recon::Rigid;
-use crate::refer::response::label_image;
+use crate::refer::response::{label_image, pose_box};
 use crate::refer::ReferSection;
 use groupforward_sim::simulation::Simulation;
 
@@ -151,23 +150,13 @@ pub struct ReferRecord {
     pub reasoner_used: String,
 }
 
-/// A gravity-aligned box from its pose (centre, yaw about z) and size.
-pub fn box_from_pose(pose: &Pose, size: &Vector3) -> OrientedBox {
-    let (p, q) = (&pose.position, &pose.orientation);
-    OrientedBox {
-        centre: DVec3::new(p.x, p.y, p.z),
-        size: DVec3::new(size.x, size.y, size.z),
-        yaw: 2.0 * q.z.atan2(q.w),
-    }
-}
-
 pub fn oriented(b: &BoundingBox3D) -> OrientedBox {
-    box_from_pose(&b.center, &b.size)
+    pose_box(&b.center, &b.size)
 }
 
 /// A listed instance's box.
 pub fn instance_box(i: &Instance) -> OrientedBox {
-    box_from_pose(&i.pose, &i.size)
+    pose_box(&i.pose, &i.size)
 }
 
 /// The object `b` names: the one it overlaps most, else the nearest within 0.5 m; 0 for none.
@@ -259,14 +248,7 @@ pub fn ask_scene(
     let shared = Mutex::new(shared);
     let box_of = |id: &str, shared: &Mutex<Shared>| -> Option<OrientedBox> {
         let s = shared.lock().ok()?;
-        s.instances
-            .iter()
-            .find(|i| i.id == id)
-            .map(|i| OrientedBox {
-                centre: DVec3::new(i.pose.position.x, i.pose.position.y, i.pose.position.z),
-                size: DVec3::new(i.size.x, i.size.y, i.size.z),
-                yaw: 2.0 * i.pose.orientation.z.atan2(i.pose.orientation.w),
-            })
+        s.instances.iter().find(|i| i.id == id).map(instance_box)
     };
     expressions
         .iter()

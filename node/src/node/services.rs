@@ -118,14 +118,23 @@ impl Shared {
 /// The referring snapshot of the current map: the stored one, or (after the map changed) a new
 /// one, built from a copy of the map without holding the lock.
 pub fn current_snapshot(shared: &Mutex<Shared>) -> std::result::Result<Arc<ReferScene>, String> {
-    let (map, vocabulary, generation) = {
+    let (map, vocabulary, generation, boxes) = {
         let s = shared.lock().map_err(|e| e.to_string())?;
         if s.refer_scene_generation == s.map_generation {
             return Ok(s.refer_scene.clone());
         }
-        (s.map.clone(), s.vocabulary.clone(), s.map_generation)
+        // The listed instances' boxes were fitted when the map changed: reuse them.
+        let boxes: std::collections::HashMap<String, crate::recon::boxes::OrientedBox> = s
+            .instances
+            .iter()
+            .map(|i| (i.id.clone(), refer::response::pose_box(&i.pose, &i.size)))
+            .collect();
+        (s.map.clone(), s.vocabulary.clone(), s.map_generation, boxes)
     };
-    let scene = Arc::new(ReferScene::build(map, vocabulary.as_ref()).map_err(|e| e.to_string())?);
+    let scene = Arc::new(
+        ReferScene::build_with_boxes(map, vocabulary.as_ref(), &boxes)
+            .map_err(|e| e.to_string())?,
+    );
     let mut s = shared.lock().map_err(|e| e.to_string())?;
     // Another query may have stored a newer one meanwhile: keep the newest.
     if generation >= s.refer_scene_generation {

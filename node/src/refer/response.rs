@@ -40,6 +40,16 @@ pub fn box_pose(b: &OrientedBox) -> Pose {
     }
 }
 
+/// The gravity-aligned box a pose (centre, yaw about z) and size describe: [`box_pose`]'s inverse.
+pub fn pose_box(pose: &Pose, size: &Vector3) -> OrientedBox {
+    let (p, q) = (&pose.position, &pose.orientation);
+    OrientedBox {
+        centre: glam::DVec3::new(p.x, p.y, p.z),
+        size: glam::DVec3::new(size.x, size.y, size.z),
+        yaw: 2.0 * q.z.atan2(q.w),
+    }
+}
+
 pub fn bounding_box(b: &OrientedBox) -> BoundingBox3D {
     BoundingBox3D {
         center: box_pose(b),

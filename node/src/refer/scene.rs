@@ -4,6 +4,7 @@
 //! newest keyframes; per keyframe, its pose and the map's rendered depth (the occlusion reference
 //! masks are cut against).
 
+use std::collections::HashMap;
 use std::sync::Arc;
 
 use glam::DVec3;
@@ -64,6 +65,16 @@ impl ReferScene {
     /// Snapshot `map`, naming instances with `vocabulary` (none: instances are unnamed and no
     /// concept can be matched).
     pub fn build(map: SceneMap, vocabulary: Option<&Vocabulary>) -> Result<Self, GraphError> {
+        Self::build_with_boxes(map, vocabulary, &HashMap::new())
+    }
+
+    /// As [`ReferScene::build`], with instances' boxes already fitted (by id; e.g. from the
+    /// instance messages of the same map) instead of fitting them again.
+    pub fn build_with_boxes(
+        map: SceneMap,
+        vocabulary: Option<&Vocabulary>,
+        boxes: &HashMap<String, OrientedBox>,
+    ) -> Result<Self, GraphError> {
         let (graph, depths) = map.graph_with_depths(SNAPSHOT_VIEWS, 0.0)?;
         let mut nodes = Vec::new();
         for (instance, node) in map.instances.iter().zip(&graph.nodes) {
@@ -82,7 +93,10 @@ impl ReferScene {
             if label == OTHER_PHRASE {
                 continue;
             }
-            let bbox = instance.oriented_box();
+            let bbox = boxes
+                .get(&instance.id)
+                .copied()
+                .unwrap_or_else(|| instance.oriented_box());
             let (lo, hi) = box_bounds(&bbox);
             let n = instance.gaussians.len().max(1) as f32;
             let color = instance
