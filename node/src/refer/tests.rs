@@ -279,16 +279,27 @@ fn degenerate_boxes_and_coincident_instances_stay_finite() {
 #[test]
 fn a_duplicate_instance_of_one_object_is_not_a_second_object() {
     let mut scene = room();
-    // A second instance of table 1 (the map saw it twice), slightly shifted.
-    scene.nodes.push(node(
-        12,
-        "table",
-        [-0.55, -0.4, 0.0],
-        [0.65, 0.4, 0.75],
-        BROWN,
-    ));
+    // A second instance of table 1 (the map saw it twice), slightly shifted and named a little
+    // more surely than either table, so without the duplicate rule it and table 1 would be chosen.
+    let mut duplicate = node(12, "table", [-0.55, -0.4, 0.0], [0.65, 0.4, 0.75], BROWN);
+    for p in &mut duplicate.names {
+        *p = if *p > 0.5 { 0.95 } else { 0.05 / 6.0 };
+    }
+    scene.nodes.push(duplicate);
     let got = ask(&scene, "both tables").unwrap();
     let ids = ids(&got, &scene);
     assert_eq!(ids.len(), 2);
     assert!(ids.contains(&"inst_000002".to_owned()), "{ids:?}");
+}
+
+#[test]
+fn an_anchor_the_map_does_not_hold_is_refused_not_stood_in_for() {
+    let mut scene = room();
+    // Without the lamp, every instance gives "lamp" only its small residual probability.
+    scene.nodes.retain(|n| n.label != "lamp");
+    let got = ask(&scene, "the chair closest to the lamp");
+    assert!(
+        matches!(got, Err(ReferError::Reason(ReasonError::NoAnchor(ref a))) if a == "lamp"),
+        "{got:?}"
+    );
 }
