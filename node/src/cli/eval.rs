@@ -26,28 +26,47 @@ const MIN_OBJECT_PIXELS: u64 = 1000;
 /// An object counts as seen by a window with this many pixels in its views.
 const MIN_WINDOW_PIXELS: u64 = 200;
 
+/// Which scenes an evaluation replays, and with which effects.
+#[derive(Debug, Clone, clap::Args)]
+pub struct ScenesArgs {
+    /// Procedural split to score (its scenes are disjoint from training's).
+    #[arg(long, default_value = "benchmark")]
+    split: String,
+    #[arg(long, default_value_t = 10)]
+    scenes: u64,
+    #[arg(long, default_value_t = 0)]
+    first_index: u64,
+    /// Score these scene files (or `<split>:<index>` specs) instead of a split (repeatable).
+    #[arg(long)]
+    scene: Vec<String>,
+    /// Replace every scene's effects by a preset: `clean`, `realistic`, `dropout:<p>`.
+    #[arg(long)]
+    effects: Option<String>,
+}
+
+impl ScenesArgs {
+    fn files(&self) -> Result<Vec<SceneFile>> {
+        scene_files(
+            &self.split,
+            self.first_index,
+            self.scenes,
+            &self.scene,
+            self.effects.as_deref(),
+        )
+    }
+}
+
 #[derive(Debug, Subcommand)]
 pub enum EvalCommand {
     /// The persistent map against ground truth: recall at 3D IoU 0.25 / 0.5, precision,
     /// duplicates, merged objects, names, room instances, identity switches; and the same
     /// yardstick on the window instances before fusion.
     Map {
-        /// Procedural split to score (its scenes are disjoint from training's).
-        #[arg(long, default_value = "benchmark")]
-        split: String,
-        #[arg(long, default_value_t = 10)]
-        scenes: u64,
-        #[arg(long, default_value_t = 0)]
-        first_index: u64,
-        /// Score these scene files (or `<split>:<index>` specs) instead of a split (repeatable).
-        #[arg(long)]
-        scene: Vec<String>,
+        #[command(flatten)]
+        scenes: ScenesArgs,
         /// Reconstruction model manifest (default: the shipped RGB-D model).
         #[arg(long)]
         model: Option<PathBuf>,
-        /// Replace every scene's effects by a preset: `clean`, `realistic`, `dropout:<p>`.
-        #[arg(long)]
-        effects: Option<String>,
         #[arg(long, default_value = "target/eval/map")]
         out: PathBuf,
     },
@@ -56,21 +75,12 @@ pub enum EvalCommand {
     /// accuracy, top-K recall, Acc@0.25 / 0.5, by relation, easy / hard, view-dependent or not,
     /// and query latency.
     Refer {
-        #[arg(long, default_value = "benchmark")]
-        split: String,
-        #[arg(long, default_value_t = 10)]
-        scenes: u64,
-        #[arg(long, default_value_t = 0)]
-        first_index: u64,
-        /// Score these scene files (or `<split>:<index>` specs) instead of a split (repeatable).
-        #[arg(long)]
-        scene: Vec<String>,
+        #[command(flatten)]
+        scenes: ScenesArgs,
         /// JSON lines of the sim's expression records (`scene`, `text`, `targets`, ...) to ask
         /// instead of the generated ones; only lines whose `scene` is replayed are asked.
         #[arg(long)]
         expressions: Option<PathBuf>,
-        #[arg(long)]
-        effects: Option<String>,
         /// Write every answer's evidence bundle (PNG + JSON) here.
         #[arg(long)]
         evidence: Option<PathBuf>,
@@ -89,32 +99,19 @@ pub enum EvalCommand {
 
 pub fn run(command: EvalCommand) -> Result<()> {
     match command {
-        EvalCommand::Map {
-            split,
-            scenes,
-            first_index,
-            scene,
-            model,
-            effects,
-            out,
-        } => {
-            let files = scene_files(&split, first_index, scenes, &scene, effects.as_deref())?;
-            eval_map(&files, model, effects.as_deref(), &out)
+        EvalCommand::Map { scenes, model, out } => {
+            eval_map(&scenes.files()?, model, scenes.effects.as_deref(), &out)
         }
         EvalCommand::Refer {
-            split,
             scenes,
-            first_index,
-            scene,
             expressions,
-            effects,
             evidence,
             reasoner,
             vlm_endpoint,
             vlm_model,
             out,
         } => {
-            let files = scene_files(&split, first_index, scenes, &scene, effects.as_deref())?;
+            let files = scenes.files()?;
             let mut config = eval_config(None);
             config.refer.reasoner = reasoner;
             config.refer.vlm.endpoint = vlm_endpoint;

@@ -268,24 +268,20 @@ fn request_view(request: &ReferRequest) -> std::result::Result<Option<ViewPose>,
     Ok(Some(ViewPose::new(0, rotation.normalize(), position)))
 }
 
-/// The expression parsed: by the LLM when `refer.llm_parse` is on and its decomposition validates,
-/// else by the rule parser; with a note for the trace.
+/// The query to answer: the LLM's decomposition when `refer.llm_parse` is on and it validates,
+/// else the rule parser's `rule`; with a note for the trace.
 fn parse_query(
     expression: &str,
+    rule: refer::Query,
     section: &ReferSection,
-) -> std::result::Result<(refer::Query, Option<String>), refer::ParseError> {
+) -> (refer::Query, Option<String>) {
     if !section.llm_parse {
-        return Ok((refer::parse(expression)?, None));
+        return (rule, None);
     }
-    let decomposed =
-        refer::vlm::VlmClient::new(&section.vlm).and_then(|client| client.parse(expression));
-    Ok(match decomposed {
+    match refer::vlm::VlmClient::new(&section.vlm).and_then(|client| client.parse(expression)) {
         Ok(query) => (query, Some("parsed by the LLM".into())),
-        Err(e) => (
-            refer::parse(expression)?,
-            Some(format!("LLM parse failed ({e}): rule parser")),
-        ),
-    })
+        Err(e) => (rule, Some(format!("LLM parse failed ({e}): rule parser"))),
+    }
 }
 
 /// Answer a referring request on the node's current snapshot (the service's work, CDR aside).
@@ -300,9 +296,10 @@ pub fn refer_request(shared: &Mutex<Shared>, request: &ReferRequest) -> ReferRes
         }
     };
     // Bad input is refused first, whatever state the node is in.
-    if let Err(e) = refer::parse(&request.expression) {
-        return failure(refer::ReferError::from(e).to_string());
-    }
+    let rule = match refer::parse(&request.expression) {
+        Ok(query) => query,
+        Err(e) => return failure(refer::ReferError::from(e).to_string()),
+    };
     let view = match request_view(request) {
         Ok(view) => view,
         Err(message) => return failure(message),
@@ -337,10 +334,7 @@ pub fn refer_request(shared: &Mutex<Shared>, request: &ReferRequest) -> ReferRes
         let Ok(mut encoder) = encoder.lock() else {
             return failure("the text encoder's lock is poisoned".into());
         };
-        let (query, parsed_by) = match parse_query(&request.expression, &section) {
-            Ok(parsed) => parsed,
-            Err(e) => return failure(refer::ReferError::from(e).to_string()),
-        };
+        let (query, parsed_by) = parse_query(&request.expression, rule, &section);
         refer::answer_query(
             &scene,
             &mut *encoder,
