@@ -447,6 +447,64 @@ fn a_part_inside_a_larger_instance_of_the_same_kind_is_folded_even_at_low_box_io
     assert_eq!(map.instances.len(), 2);
 }
 
+#[test]
+fn a_window_that_splits_an_object_puts_every_part_into_its_one_instance() {
+    // The map holds a table; the next window gives its top and one leg as two instances (a
+    // window's grouping often does). Both parts are that table: no new id, nothing born.
+    let mut map = SceneMap::new(FusionParams::default());
+    let table = WindowInstance {
+        gaussians: cuboid(Vec3::new(3.0, 0.0, 0.0), Vec3::new(0.5, 0.3, 0.2)),
+        prototype: TABLE.to_vec(),
+        support: 300,
+    };
+    map.fuse(vec![table], &[], 1).unwrap();
+    let top = WindowInstance {
+        gaussians: cuboid(Vec3::new(3.0, 0.0, 0.15), Vec3::new(0.5, 0.3, 0.05)),
+        prototype: TABLE.to_vec(),
+        support: 200,
+    };
+    let leg = WindowInstance {
+        gaussians: cuboid(Vec3::new(3.4, 0.2, -0.05), Vec3::new(0.05, 0.05, 0.15)),
+        prototype: TABLE.to_vec(),
+        support: 20,
+    };
+    let report = map.fuse(vec![leg, top], &[], 2).unwrap();
+    assert_eq!(report.assigned, ["inst_000001", "inst_000001"]);
+    assert_eq!((report.born, report.merged), (0, 2));
+    assert!(report.absorbed.is_empty(), "{:?}", report.absorbed);
+    assert_eq!(map.instances.len(), 1);
+    assert_eq!(map.instances[0].observations, 3);
+}
+
+#[test]
+fn a_window_instance_spanning_a_chair_and_a_table_folds_neither_into_the_other() {
+    // A chair, then a table beside it, each its own instance. A window then groups the two
+    // into one instance (its prototype between theirs, close enough to both to pass the gate):
+    // the map must not take that for proof that the chair and the table are one object.
+    let mut map = SceneMap::new(FusionParams::default());
+    let chair = WindowInstance {
+        gaussians: cuboid(Vec3::new(3.0, -0.5, 0.0), Vec3::splat(0.2)),
+        prototype: CHAIR.to_vec(),
+        support: 100,
+    };
+    map.fuse(vec![chair], &[], 1).unwrap();
+    let table = WindowInstance {
+        gaussians: cuboid(Vec3::new(3.0, 0.4, 0.0), Vec3::new(0.5, 0.4, 0.2)),
+        prototype: TABLE.to_vec(),
+        support: 300,
+    };
+    map.fuse(vec![table], &[], 2).unwrap();
+    let both = WindowInstance {
+        gaussians: cuboid(Vec3::new(3.0, 0.05, 0.0), Vec3::new(0.5, 0.75, 0.2)),
+        prototype: vec![0.6, 0.8, 0.0],
+        support: 400,
+    };
+    let report = map.fuse(vec![both], &[], 3).unwrap();
+    assert!(report.absorbed.is_empty(), "{:?}", report.absorbed);
+    let ids: Vec<&str> = map.instances.iter().map(|i| i.id.as_str()).collect();
+    assert_eq!(ids, ["inst_000001", "inst_000002"]);
+}
+
 fn sample_map() -> SceneMap {
     let mut map = SceneMap::new(FusionParams::default());
     map.fuse(

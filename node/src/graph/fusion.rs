@@ -1,5 +1,5 @@
 //! Fusion: associate a window's instances with the persistent ones (3D overlap plus prototype
-//! similarity, Kuhn–Munkres), merge or give birth, fold duplicates, and let instances that should
+//! similarity, Kuhn–Munkres, then parts), merge or give birth, fold duplicates, and let instances that should
 //! have been seen lose confidence and die.
 
 use std::collections::{HashMap, VecDeque};
@@ -44,6 +44,10 @@ struct Footprint {
     spacing: f32,
 }
 
+/// A window instance left over by the one-to-one matching is a part of a persistent instance
+/// when at least this share of its points lies on it.
+const PART_COVERED: f32 = 0.5;
+
 /// At most this many points per instance enter the overlap test (an even stride).
 const ASSOCIATION_POINTS: usize = 2048;
 
@@ -83,45 +87,77 @@ impl Footprint {
     /// Fraction of the smaller footprint's points that have a point of the other within
     /// `radius`: 1 for a view of part of the same surface, ~0 for a neighbouring object.
     fn overlap(&self, other: &Footprint, radius: f32) -> f32 {
-        let apart =
-            (0..3).any(|a| self.lo[a] - radius > other.hi[a] || other.lo[a] - radius > self.hi[a]);
-        if apart {
+        if self.points.len() <= other.points.len() {
+            self.covered_by(other, radius)
+        } else {
+            other.covered_by(self, radius)
+        }
+    }
+
+    /// Fraction of this footprint's points that have a point of `other` within `radius`.
+    fn covered_by(&self, other: &Footprint, radius: f32) -> f32 {
+        if self.apart(other.lo, other.hi, radius) {
             return 0.0;
         }
-        let (small, large) = if self.points.len() <= other.points.len() {
-            (self, other)
-        } else {
-            (other, self)
-        };
-        let cell = |p: Vec3| {
-            (
-                (p.x / radius).floor() as i32,
-                (p.y / radius).floor() as i32,
-                (p.z / radius).floor() as i32,
-            )
-        };
-        let mut grid: HashMap<(i32, i32, i32), Vec<Vec3>> = HashMap::new();
-        for p in &large.points {
-            grid.entry(cell(*p)).or_default().push(*p);
-        }
-        let r2 = radius * radius;
-        let hits = small
+        let grid = PointGrid::new(&other.points, radius);
+        let hits = self
             .points
             .iter()
-            .filter(|p| {
-                let (x, y, z) = cell(**p);
-                (-1..=1).any(|dx| {
-                    (-1..=1).any(|dy| {
-                        (-1..=1).any(|dz| {
-                            grid.get(&(x + dx, y + dy, z + dz)).is_some_and(|cell| {
-                                cell.iter().any(|q| q.distance_squared(**p) <= r2)
-                            })
-                        })
-                    })
-                })
-            })
+            .filter(|p| grid.nearest_squared(**p).is_some())
             .count();
-        hits as f32 / small.points.len().max(1) as f32
+        hits as f32 / self.points.len().max(1) as f32
+    }
+
+    /// Whether the box `lo`..`hi` lies farther than `margin` from this footprint's bounds.
+    fn apart(&self, lo: Vec3, hi: Vec3, margin: f32) -> bool {
+        (0..3).any(|a| self.lo[a] - margin > hi[a] || lo[a] - margin > self.hi[a])
+    }
+}
+
+/// Points hashed into cells of one radius, for "nearest point within the radius" queries.
+struct PointGrid<'a> {
+    radius: f32,
+    cells: HashMap<(i32, i32, i32), Vec<&'a Vec3>>,
+}
+
+impl<'a> PointGrid<'a> {
+    fn new(points: &'a [Vec3], radius: f32) -> Self {
+        let mut cells: HashMap<(i32, i32, i32), Vec<&Vec3>> = HashMap::new();
+        for p in points {
+            cells.entry(Self::cell(*p, radius)).or_default().push(p);
+        }
+        Self { radius, cells }
+    }
+
+    fn cell(p: Vec3, radius: f32) -> (i32, i32, i32) {
+        (
+            (p.x / radius).floor() as i32,
+            (p.y / radius).floor() as i32,
+            (p.z / radius).floor() as i32,
+        )
+    }
+
+    /// Squared distance to the nearest point within the radius, if any.
+    fn nearest_squared(&self, p: Vec3) -> Option<f32> {
+        let (x, y, z) = Self::cell(p, self.radius);
+        let r2 = self.radius * self.radius;
+        let mut best: Option<f32> = None;
+        for dx in -1..=1 {
+            for dy in -1..=1 {
+                for dz in -1..=1 {
+                    let Some(cell) = self.cells.get(&(x + dx, y + dy, z + dz)) else {
+                        continue;
+                    };
+                    for q in cell {
+                        let d = q.distance_squared(p);
+                        if d <= r2 && best.is_none_or(|b| d < b) {
+                            best = Some(d);
+                        }
+                    }
+                }
+            }
+        }
+        best
     }
 }
 
@@ -191,51 +227,93 @@ impl SceneMap {
             .iter()
             .map(|m| Footprint::new(&m.gaussians, p.voxel))
             .collect();
+        // One to one first (Kuhn–Munkres): each persistent instance goes to the window instance
+        // that scores best with it, so two window objects never both become one map object.
+        let rows = window.len();
+        let n = self.instances.len();
+        let mut pairs: Vec<Option<usize>> = vec![None; rows];
+        let mut gated: Vec<Vec<usize>> = vec![Vec::new(); rows];
+        // Columns: every persistent instance, plus one "new instance" column per row so that
+        // rows ≤ columns and birth is always possible (score 0).
         let scale = 1_000_000.0f32;
-        let (rows, cols) = (window.len(), self.instances.len() + window.len());
-        let mut pairs = vec![None; rows];
-        // Persistent instances that also pass the gate for a window instance matched elsewhere:
-        // duplicates of one object (born when an earlier view overlapped too little).
-        let mut duplicates: Vec<Vec<usize>> = vec![Vec::new(); rows];
-        if rows > 0 && !self.instances.is_empty() {
-            // Columns: every persistent instance, plus one "new instance" column per row so that
-            // rows ≤ columns and birth is always possible (score 0).
-            let mut weights = Matrix::new(rows, cols, 0i64);
-            for (i, wf) in window_footprints.iter().enumerate() {
-                for (j, mf) in map_footprints.iter().enumerate() {
-                    let radius = 1.5 * wf.spacing.max(mf.spacing);
-                    let overlap = wf.overlap(mf, radius);
-                    // Without semantics (no semantic model yet), geometry alone decides.
-                    let (a, b) = (&window[i].prototype, &self.instances[j].prototype);
-                    let similarity = (!a.is_empty() && !b.is_empty()).then(|| cosine(a, b));
-                    if overlap >= p.min_overlap && similarity.is_none_or(|s| s >= p.min_similarity)
-                    {
-                        let score = match similarity {
-                            Some(similarity) => {
-                                p.geometry_weight * overlap + (1.0 - p.geometry_weight) * similarity
-                            }
-                            None => overlap,
-                        };
-                        weights[(i, j)] = (score * scale) as i64;
-                    }
+        let mut weights = Matrix::new(rows, n + rows, 0i64);
+        for (i, wf) in window_footprints.iter().enumerate() {
+            for (j, mf) in map_footprints.iter().enumerate() {
+                let radius = 1.5 * wf.spacing.max(mf.spacing);
+                let overlap = wf.overlap(mf, radius);
+                // Without semantics (no semantic model yet), geometry alone decides.
+                let (a, b) = (&window[i].prototype, &self.instances[j].prototype);
+                let similarity = (!a.is_empty() && !b.is_empty()).then(|| cosine(a, b));
+                if overlap < p.min_overlap || similarity.is_some_and(|s| s < p.min_similarity) {
+                    continue;
                 }
+                let score = match similarity {
+                    Some(similarity) => {
+                        p.geometry_weight * overlap + (1.0 - p.geometry_weight) * similarity
+                    }
+                    None => overlap,
+                };
+                gated[i].push(j);
+                weights[(i, j)] = (score * scale).max(1.0) as i64;
             }
+        }
+        if rows > 0 && n > 0 {
             let (_, assignment) = kuhn_munkres(&weights);
             for (i, &j) in assignment.iter().enumerate() {
-                if j < self.instances.len() && weights[(i, j)] > 0 {
+                if j < n && weights[(i, j)] > 0 {
                     pairs[i] = Some(j);
-                    duplicates[i] = (0..self.instances.len())
-                        .filter(|&other| other != j && weights[(i, other)] > 0)
-                        .filter(|&other| !assignment.contains(&other))
-                        .collect();
                 }
             }
         }
+        // Then parts: a window instance left over whose points lie mostly on an instance it
+        // passes the gate for (a table's leg split from its top by the window's grouping) joins
+        // that instance instead of being born under a new id. A window instance that spans a
+        // chair and the table beside it lies mostly on neither and is born.
+        for i in 0..rows {
+            if pairs[i].is_some() {
+                continue;
+            }
+            let wf = &window_footprints[i];
+            pairs[i] = gated[i]
+                .iter()
+                .map(|&j| {
+                    let mf = &map_footprints[j];
+                    (j, wf.covered_by(mf, 1.5 * wf.spacing.max(mf.spacing)))
+                })
+                .filter(|&(_, covered)| covered >= PART_COVERED)
+                .max_by(|a, b| a.1.total_cmp(&b.1))
+                .map(|(j, _)| j);
+        }
+        // Persistent instances that pass the gate for a window instance but are no window
+        // instance's best, and look like the one it chose: duplicates of one object (born when
+        // an earlier view overlapped too little). A window instance that spans two different
+        // objects (a chair the window grouped with its table) folds nothing.
+        let chosen: Vec<usize> = pairs.iter().flatten().copied().collect();
+        let alike = |a: usize, b: usize| {
+            let (pa, pb) = (&self.instances[a].prototype, &self.instances[b].prototype);
+            pa.is_empty() || pb.is_empty() || cosine(pa, pb) >= p.duplicate_similarity
+        };
+        let duplicates: Vec<Vec<usize>> = (0..rows)
+            .map(|i| match pairs[i] {
+                Some(j) => gated[i]
+                    .iter()
+                    .copied()
+                    .filter(|&other| other != j && !chosen.contains(&other) && alike(j, other))
+                    .collect(),
+                None => Vec::new(),
+            })
+            .collect();
         let mut matched = vec![false; self.instances.len()];
         let mut absorbed = vec![false; self.instances.len()];
+        // Where an absorbed instance went: several window instances may have chosen it.
+        let mut survivor: Vec<usize> = (0..self.instances.len()).collect();
         for (i, w) in window.into_iter().enumerate() {
             match pairs[i] {
                 Some(j) => {
+                    let mut j = j;
+                    while survivor[j] != j {
+                        j = survivor[j];
+                    }
                     matched[j] = true;
                     // Fold duplicates into the oldest of them (ids only ever grow).
                     let mut group: Vec<usize> = std::iter::once(j)
@@ -245,6 +323,7 @@ impl SceneMap {
                     let j = group[0];
                     for &d in &group[1..] {
                         absorbed[d] = true;
+                        survivor[d] = j;
                         matched[d] = true;
                         let duplicate = self.instances[d].clone();
                         report

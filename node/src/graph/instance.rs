@@ -156,17 +156,5 @@ pub(super) fn capped(g: Gaussians, voxel: f32, cap: usize) -> Gaussians {
         return merged;
     }
     let stride = merged.len().div_ceil(cap);
-    let mut out = Gaussians::with_dims(merged.embedding_dim, merged.extra_dim);
-    for i in (0..merged.len()).step_by(stride) {
-        out.push(
-            merged.means[i],
-            merged.opacities[i],
-            merged.scales[i],
-            merged.rotations[i],
-            merged.colors[i],
-            merged.embedding(i),
-            &merged.extra[i * merged.extra_dim..(i + 1) * merged.extra_dim],
-        );
-    }
-    out
+    merged.select((0..merged.len()).step_by(stride))
 }

@@ -154,6 +154,23 @@ impl Gaussians {
         self.embeddings.extend_from_slice(&other.embeddings);
         self.extra.extend_from_slice(&other.extra);
     }
+
+    /// The Gaussians at `indices`, in that order (each index must be in range).
+    pub fn select(&self, indices: impl IntoIterator<Item = usize>) -> Gaussians {
+        let mut out = Gaussians::with_dims(self.embedding_dim, self.extra_dim);
+        for i in indices {
+            out.push(
+                self.means[i],
+                self.opacities[i],
+                self.scales[i],
+                self.rotations[i],
+                self.colors[i],
+                self.embedding(i),
+                &self.extra[i * self.extra_dim..(i + 1) * self.extra_dim],
+            );
+        }
+        out
+    }
 }
 
 /// A normalised rotation; a zero (or non-finite-norm) quaternion is the identity.
