@@ -5,6 +5,7 @@
 //! semantics; transport: zenoh); this module only assembles them, adds the node's own sections
 //! (name, status) and checks what spans sections.
 
+use crate::outputs::OutputsSection;
 use crate::refer::ReferSection;
 use std::path::Path;
 
@@ -53,6 +54,7 @@ pub struct Config {
     pub map: MapSection,
     pub semantics: SemanticsSection,
     pub refer: ReferSection,
+    pub outputs: OutputsSection,
 }
 
 impl Default for Config {
@@ -69,6 +71,7 @@ impl Default for Config {
             map: MapSection::default(),
             semantics: SemanticsSection::default(),
             refer: ReferSection::default(),
+            outputs: OutputsSection::default(),
         }
     }
 }
@@ -160,6 +163,7 @@ impl Config {
             ("ingest.max_pose_wait_secs", self.ingest.max_pose_wait_secs),
             ("status.period_secs", self.status.period_secs),
             ("tf.history_secs", self.tf.history_secs),
+            ("outputs.max_rate_hz", self.outputs.max_rate_hz),
         ] {
             if !(value.is_finite() && value > 0.0) {
                 return invalid(format!("{what} must be a positive number, got {value}"));
@@ -189,6 +193,20 @@ impl Config {
         }
         if self.tf.world_frame.is_empty() {
             return invalid("tf.world_frame must not be empty".into());
+        }
+        let republish = self.outputs.republish_secs;
+        if !(republish.is_finite() && republish >= 0.0) {
+            return invalid(format!(
+                "outputs.republish_secs must be 0 or a positive number, got {republish}"
+            ));
+        }
+        for (what, topic) in self.outputs.topics() {
+            if topic.is_empty() {
+                continue;
+            }
+            if let Err(e) = resolve_name(&self.node.namespace, &self.node.name, topic) {
+                return invalid(format!("outputs.{what}: {e}"));
+            }
         }
         Ok(())
     }

@@ -10,11 +10,17 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use groupforward_msgs::geometry_msgs::Quaternion;
-use groupforward_msgs::gf_msgs::{ListInstancesRequest, ListInstancesResponse, NodeStatus};
+use groupforward_msgs::gf_msgs::{
+    InstanceArray, InstanceMasks, ListInstancesRequest, ListInstancesResponse, NodeStatus,
+    SceneGraph,
+};
 use groupforward_msgs::rmw_zenoh::{self, Attachment, Qos};
 use groupforward_msgs::sensor_msgs::Image;
+use groupforward_msgs::sensor_msgs::PointCloud2;
 use groupforward_msgs::services::{ListInstances, Refer};
 use groupforward_msgs::tf2_msgs::TFMessage;
+use groupforward_msgs::vision_msgs::Detection3DArray;
+use groupforward_msgs::visualization_msgs::MarkerArray;
 use groupforward_msgs::{cdr, RosMessage, RosService};
 use groupforward_sim::record::{record_to_memory, RecordOptions, RecordSummary};
 use groupforward_sim::referring::Expression;
@@ -143,7 +149,77 @@ pub struct DemoReport {
     pub vocabulary: std::result::Result<Vec<VocabularyMatch>, String>,
     /// The listed instances against the scene's objects, with `eval map`'s yardstick.
     pub map_score: crate::eval::score::Counts,
+    /// What the node's output topics carried last, as a subscriber received it.
+    pub published: PublishedOutputs,
     pub elapsed: Duration,
+}
+
+/// The last message of each output topic, decoded, as a subscriber of the running node saw it.
+#[derive(Debug, Clone, Default)]
+pub struct PublishedOutputs {
+    pub detections: Option<Detection3DArray>,
+    pub instance_array: Option<InstanceArray>,
+    pub cloud: Option<PointCloud2>,
+    /// Every mask message received (one per view of each published window).
+    pub masks: Vec<InstanceMasks>,
+    pub markers: Option<MarkerArray>,
+    pub scene_graph: Option<SceneGraph>,
+    /// Messages received over all output topics.
+    pub messages: u64,
+}
+
+/// Received payloads by topic name.
+type Inbox = Arc<std::sync::Mutex<std::collections::HashMap<String, Vec<Vec<u8>>>>>;
+
+/// Subscribe to every output topic of `endpoints` on `transport`, collecting payloads.
+fn subscribe_outputs(
+    transport: &dyn Transport,
+    endpoints: &crate::node::outputs::OutputEndpoints,
+) -> Result<Inbox> {
+    let inbox: Inbox = Arc::default();
+    for endpoint in endpoints.all() {
+        let (inbox, name) = (inbox.clone(), endpoint.name.clone());
+        transport.subscribe(
+            endpoint,
+            Arc::new(move |payload| {
+                if let Ok(mut inbox) = inbox.lock() {
+                    inbox.entry(name.clone()).or_default().push(payload);
+                }
+            }),
+        )?;
+    }
+    Ok(inbox)
+}
+
+/// Decode what `inbox` holds (the last message of each topic; every mask message).
+fn decode_outputs(
+    inbox: &Inbox,
+    endpoints: &crate::node::outputs::OutputEndpoints,
+) -> PublishedOutputs {
+    let Ok(inbox) = inbox.lock() else {
+        return PublishedOutputs::default();
+    };
+    fn last<T: serde::de::DeserializeOwned>(
+        inbox: &std::collections::HashMap<String, Vec<Vec<u8>>>,
+        endpoint: &Option<Endpoint>,
+    ) -> Option<T> {
+        let payloads = inbox.get(&endpoint.as_ref()?.name)?;
+        cdr::decode(payloads.last()?).ok()
+    }
+    PublishedOutputs {
+        detections: last(&inbox, &endpoints.instances),
+        instance_array: last(&inbox, &endpoints.instance_array),
+        cloud: last(&inbox, &endpoints.instance_cloud),
+        masks: endpoints
+            .instance_masks
+            .as_ref()
+            .and_then(|e| inbox.get(&e.name))
+            .map(|all| all.iter().filter_map(|p| cdr::decode(p).ok()).collect())
+            .unwrap_or_default(),
+        markers: last(&inbox, &endpoints.markers),
+        scene_graph: last(&inbox, &endpoints.scene_graph),
+        messages: inbox.values().map(|v| v.len() as u64).sum(),
+    }
 }
 
 /// The payload of the first reply to a get, or the error the replier sent.
@@ -255,6 +331,10 @@ pub fn run_demo(options: &DemoOptions) -> Result<DemoReport> {
         &config.node.namespace,
         &config.node.name,
     )?;
+    // A subscriber of every output topic, as RViz or a navigation stack would be.
+    let listener = ZenohTransport::new(session.clone(), domain, "/", "demo_listener")?;
+    let output_endpoints = crate::node::outputs::OutputEndpoints::declare(&config)?;
+    let inbox = subscribe_outputs(&listener, &output_endpoints)?;
     let shutdown = Arc::new(AtomicBool::new(false));
     let node_thread = {
         let (config, shutdown) = (config.clone(), shutdown.clone());
@@ -426,6 +506,17 @@ pub fn run_demo(options: &DemoOptions) -> Result<DemoReport> {
         })
         .collect();
     let map_score = score_listed(&sim, &instances, &options.scene);
+    // The node published its final map while stopping; give the last messages time to arrive.
+    let final_count = instances.len();
+    let published = wait_for("publish its final map", timeout, || {
+        let published = decode_outputs(&inbox, &output_endpoints);
+        let arrived = published
+            .detections
+            .as_ref()
+            .is_some_and(|d| d.detections.len() == final_count);
+        arrived.then_some(published)
+    })
+    .unwrap_or_else(|_| decode_outputs(&inbox, &output_endpoints));
     Ok(DemoReport {
         scene: options.scene.name.clone(),
         recorded,
@@ -438,6 +529,7 @@ pub fn run_demo(options: &DemoOptions) -> Result<DemoReport> {
         evidence_dir,
         vocabulary: match_vocabulary(DEMO_QUERIES),
         map_score,
+        published,
         elapsed: started.elapsed(),
     })
 }

@@ -36,6 +36,7 @@ pub mod group;
 pub mod ingest;
 pub mod model;
 pub mod node;
+pub mod outputs;
 pub mod recon;
 pub mod refer;
 pub mod replay;

@@ -105,6 +105,7 @@ fn channel_endpoint(channel: &mcap::Channel<'_>) -> std::result::Result<Endpoint
         type_name,
         type_hash,
         qos: Qos::default(),
+        lossless: false,
     })
 }
 

@@ -84,6 +84,9 @@ pub struct Endpoint {
     pub type_name: String,
     pub type_hash: String,
     pub qos: Qos,
+    /// A publisher waits for a congested network instead of dropping the message: for large,
+    /// infrequent messages (the map's cloud) that a subscriber must not silently miss.
+    pub lossless: bool,
 }
 
 impl Endpoint {
@@ -95,7 +98,16 @@ impl Endpoint {
             type_name: type_name.to_owned(),
             type_hash: groupforward_msgs::idl::type_hash(type_name)?,
             qos,
+            lossless: false,
         })
+    }
+
+    /// The same endpoint, published without dropping under congestion.
+    pub fn lossless(self) -> Self {
+        Self {
+            lossless: true,
+            ..self
+        }
     }
 }
 
@@ -294,7 +306,17 @@ impl Transport for ZenohTransport {
         let key = self.data_key(topic)?;
         let gid = self.announce(EntityKind::Publisher, topic)?;
         tracing::debug!(%key, "publishing");
-        let publisher = self.session.declare_publisher(key).wait().map_err(zerr)?;
+        let congestion = if topic.lossless {
+            zenoh::qos::CongestionControl::Block
+        } else {
+            zenoh::qos::CongestionControl::Drop
+        };
+        let publisher = self
+            .session
+            .declare_publisher(key)
+            .congestion_control(congestion)
+            .wait()
+            .map_err(zerr)?;
         Ok(Box::new(ZenohPublisher {
             publisher,
             gid,

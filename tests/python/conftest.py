@@ -67,6 +67,8 @@ zenoh:
   connect: []
 status:
   period_secs: 0.1
+outputs:
+  republish_secs: 0.3
 cameras:
   - name: front
     image_topic: /camera/color/image_raw

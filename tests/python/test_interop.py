@@ -117,6 +117,43 @@ def test_python_subscriber_receives_status_on_its_rmw_zenoh_key(node, ts):
     assert abs(stamp1 - time.time_ns()) < 60 * 10**9
 
 
+def test_map_outputs_reach_a_python_subscriber_with_rosbags_types_and_hashes(node, ts):
+    """Every output topic on its rmw_zenoh key with the RIHS01 hash rosbags computes for its type (a
+    wrong hash is a different key: nothing would arrive), CDR that rosbags decodes, in the map frame.
+    The node starts with an empty map, so the messages say that: no objects, an empty cloud."""
+    outputs = {
+        'instances': 'vision_msgs/msg/Detection3DArray',
+        'instance_array': 'groupforward_msgs/msg/InstanceArray',
+        'instance_cloud': 'sensor_msgs/msg/PointCloud2',
+        'markers': 'visualization_msgs/msg/MarkerArray',
+        'scene_graph': 'groupforward_msgs/msg/SceneGraph',
+    }
+    received = {name: [] for name in outputs}
+    subscribers = [
+        node.session.declare_subscriber(key(ts, f'/groupforward/{name}', type_name),
+                                        lambda sample, name=name: received[name].append(sample))
+        for name, type_name in outputs.items()]
+    wait_until('a message on every output topic', lambda: all(received.values()))
+    for subscriber in subscribers:
+        subscriber.undeclare()
+    decoded = {name: ts.deserialize_cdr(received[name][-1].payload.to_bytes(), type_name)
+               for name, type_name in outputs.items()}
+    assert decoded['instances'].header.frame_id == 'map'
+    assert decoded['instances'].detections == []
+    assert decoded['instance_array'].instances == []
+    cloud = decoded['instance_cloud']
+    assert [f.name for f in cloud.fields] == ['x', 'y', 'z', 'rgb', 'instance_id']
+    assert cloud.width == 0 and cloud.point_step == 20
+    assert decoded['scene_graph'].nodes == [] and decoded['scene_graph'].edges == []
+    assert decoded['markers'].markers == []
+    # Liveliness: each output is announced as a publisher with the same type hash.
+    tokens = [str(reply.ok.key_expr) for reply in node.session.liveliness().get('@ros2_lv/0/**', timeout=3)
+              if reply.ok is not None and '/MP/' in str(reply.ok.key_expr)]
+    for name, type_name in outputs.items():
+        assert any(f'%groupforward%{name}/{dds(type_name)}/{ts.hash_rihs01(type_name)}/' in t for t in tokens), \
+            (name, tokens)
+
+
 def test_liveliness_tokens_follow_rmw_zenoh(node, ts):
     tokens = [str(reply.ok.key_expr) for reply in node.session.liveliness().get('@ros2_lv/0/**', timeout=3)
               if reply.ok is not None]

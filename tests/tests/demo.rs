@@ -1,9 +1,13 @@
 #![allow(clippy::unwrap_used)]
 //! The demo end to end: a sim-recorded bag replayed over zenoh reaches the node frame for frame,
 //! malformed input is counted, and the node answers the scene's referring expressions through its
-//! `Refer` service.
+//! `Refer` service; a subscriber of its output topics receives the same map.
+
+use std::collections::BTreeSet;
 
 use groupforward::demo::{run_demo, DemoOptions};
+use groupforward::refer::response::numeric_id;
+use groupforward_msgs::visualization_msgs::Marker;
 
 #[test]
 fn the_demo_replays_a_sim_recorded_bag_into_the_node() {
@@ -91,4 +95,73 @@ fn the_demo_replays_a_sim_recorded_bag_into_the_node() {
             .all(|c| c.score.is_finite() && (0.0..=1.0).contains(&c.semantic_score)));
     }
     assert!(answered >= 3, "{answered} answers");
+
+    // What a subscriber of the output topics received describes the same map, by the same ids.
+    let p = &report.published;
+    let listed: BTreeSet<&str> = report.instances.iter().map(|i| i.id.as_str()).collect();
+    let detections = p.detections.as_ref().expect("~/instances received");
+    assert_eq!(detections.header.frame_id, "map");
+    let detected: BTreeSet<&str> = detections
+        .detections
+        .iter()
+        .map(|d| d.id.as_str())
+        .collect();
+    assert_eq!(detected, listed);
+    for d in &detections.detections {
+        let listed = report.instances.iter().find(|i| i.id == d.id).unwrap();
+        assert_eq!(d.bbox.center, listed.pose, "{}", d.id);
+        assert_eq!(d.bbox.size, listed.size, "{}", d.id);
+    }
+    let array = p
+        .instance_array
+        .as_ref()
+        .expect("~/instance_array received");
+    assert_eq!(array.instances, report.instances);
+    let numeric: BTreeSet<u32> = listed.iter().map(|id| numeric_id(id)).collect();
+    let cloud = p.cloud.as_ref().expect("~/instance_cloud received");
+    let total: u32 = report.instances.iter().map(|i| i.point_count).sum();
+    assert_eq!(
+        cloud.width, total,
+        "every listed Gaussian, within the point budget"
+    );
+    let cloud_ids: BTreeSet<u32> = cloud
+        .data
+        .chunks_exact(cloud.point_step as usize)
+        .map(|point| u32::from_le_bytes(point[16..20].try_into().unwrap()))
+        .collect();
+    assert_eq!(cloud_ids, numeric);
+    let markers = p.markers.as_ref().expect("~/markers received");
+    let boxes: BTreeSet<u32> = markers
+        .markers
+        .iter()
+        .filter(|m| m.action == Marker::ADD && m.ns == "instances")
+        .map(|m| m.id as u32)
+        .collect();
+    assert_eq!(boxes, numeric);
+    let graph = p.scene_graph.as_ref().expect("~/scene_graph received");
+    let nodes: BTreeSet<&str> = graph.nodes.iter().map(|n| n.id.as_str()).collect();
+    assert_eq!(nodes, listed);
+    // Masks: one per view of each window, from the configured camera, labelling listed ids only.
+    assert!(p.masks.len() >= 4, "{} masks", p.masks.len());
+    for mask in &p.masks {
+        assert_eq!(mask.camera, "front");
+        assert!(!mask.header.frame_id.is_empty());
+        let largest = mask
+            .mask
+            .data
+            .chunks_exact(2)
+            .map(|v| u16::from_le_bytes([v[0], v[1]]) as usize)
+            .max()
+            .unwrap_or(0);
+        assert!(largest <= mask.instance_ids.len());
+    }
+    let last = p.masks.last().unwrap();
+    assert!(last
+        .instance_ids
+        .iter()
+        .all(|id| listed.contains(id.as_str())));
+    assert!(
+        last.mask.data.iter().any(|b| *b != 0),
+        "the last window's views show some instance"
+    );
 }

@@ -180,6 +180,7 @@ fn print_report(report: &DemoReport) {
             path.display()
         );
     }
+    print_published(&report.published);
     match &report.vocabulary {
         Ok(matches) => {
             println!("  open vocabulary (all-MiniLM-L6-v2 int8 via ONNX Runtime), phrase -> sim class by name, description or affordance:");
@@ -190,4 +191,73 @@ fn print_report(report: &DemoReport) {
         Err(e) => println!("  text encoder unavailable: {e}"),
     }
     println!("  finished in {:.1} s", report.elapsed.as_secs_f64());
+}
+
+/// What a subscriber of the node's output topics received: one line per topic.
+fn print_published(p: &groupforward::demo::PublishedOutputs) {
+    println!(
+        "  published topics, as a subscriber (RViz, a navigation stack) received them ({} messages, map frame):",
+        p.messages
+    );
+    match &p.detections {
+        Some(d) => println!(
+            "    ~/instances        vision_msgs/Detection3DArray: {} detections (id, class hypotheses, oriented box)",
+            d.detections.len()
+        ),
+        None => println!("    ~/instances        nothing received"),
+    }
+    if let Some(a) = &p.instance_array {
+        println!(
+            "    ~/instance_array   groupforward_msgs/InstanceArray: {} instances ({} Gaussians)",
+            a.instances.len(),
+            a.instances
+                .iter()
+                .map(|i| u64::from(i.point_count))
+                .sum::<u64>()
+        );
+    }
+    if let Some(c) = &p.cloud {
+        let ids: std::collections::BTreeSet<[u8; 4]> = c
+            .data
+            .chunks_exact(c.point_step.max(1) as usize)
+            .filter_map(|point| point.get(16..20)?.try_into().ok())
+            .collect();
+        println!(
+            "    ~/instance_cloud   sensor_msgs/PointCloud2: {} points of {} instances (x, y, z, rgb, instance_id)",
+            c.width,
+            ids.len()
+        );
+    }
+    if !p.masks.is_empty() {
+        let labelled: usize = p
+            .masks
+            .iter()
+            .map(|m| m.mask.data.chunks_exact(2).filter(|v| v != &[0, 0]).count())
+            .sum();
+        let pixels: usize = p.masks.iter().map(|m| m.mask.data.len() / 2).sum();
+        let cameras: std::collections::BTreeSet<&str> =
+            p.masks.iter().map(|m| m.camera.as_str()).collect();
+        println!(
+            "    ~/instance_masks   groupforward_msgs/InstanceMasks: {} label images (mono16, cameras {:?}), {:.0}% of pixels on an instance",
+            p.masks.len(),
+            cameras,
+            100.0 * labelled as f64 / pixels.max(1) as f64
+        );
+    }
+    if let Some(m) = &p.markers {
+        let adds = m.markers.iter().filter(|m| m.action == 0).count();
+        println!(
+            "    ~/markers          visualization_msgs/MarkerArray: {} boxes, {} labels, {} deletions",
+            adds / 2,
+            adds / 2,
+            m.markers.len() - adds
+        );
+    }
+    if let Some(g) = &p.scene_graph {
+        println!(
+            "    ~/scene_graph      groupforward_msgs/SceneGraph: {} nodes, {} edges (also JSON: the scene_graph API)",
+            g.nodes.len(),
+            g.edges.len()
+        );
+    }
 }

@@ -2,8 +2,9 @@
 //!
 //! Each window pass yields instances (Gaussians plus a semantic prototype). [`SceneMap::fuse`]
 //! associates them with the persistent instances by 3D overlap (nearest-neighbour ratio) plus
-//! prototype similarity with an optimal assignment (Kuhn–Munkres, `pathfinding`); matched ones
-//! merge (voxel-downsampled Gaussians, count-weighted prototype), unmatched ones are born, and
+//! prototype similarity with an optimal assignment (Kuhn–Munkres, `pathfinding`), after which a
+//! window instance left over that lies mostly on one persistent instance joins it as a part of
+//! that object; matched ones merge (voxel-downsampled Gaussians, count-weighted prototype), unmatched ones are born, and
 //! persistent instances that the window should have seen but did not lose confidence and die.
 //! Memory stays bounded: Gaussians per instance and keyframes are capped, and instances beyond a
 //! clearing radius from the robot are dropped. [`SceneMap::graph`] derives nodes and edges.

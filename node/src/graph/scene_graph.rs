@@ -152,7 +152,7 @@ pub struct EdgeView {
     pub overlap: Option<f32>,
 }
 
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, Default, PartialEq)]
 pub struct SceneGraph {
     pub keyframe_stamps: Vec<i64>,
     pub nodes: Vec<GraphNode>,

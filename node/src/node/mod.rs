@@ -5,11 +5,13 @@
 //! - [`queue`]: the bounded input queue;
 //! - [`status`]: ingest-side state and the status report;
 //! - [`worker`]: the window worker (model passes, fusion);
+//! - [`outputs`]: the thread that publishes the map's instances, cloud, masks, markers and graph;
 //! - [`error`]: what can stop the node;
 //! - [`services`]: shared state, services, the JSON API and their declaration;
 //! - this file: [`run`], the loop that ties them together.
 
 pub mod error;
+pub mod outputs;
 pub mod queue;
 pub mod services;
 pub mod status;
@@ -66,6 +68,14 @@ pub fn run(
     let shared = Arc::new(Mutex::new(initial));
     let declared = declare(config, transport, &queue, &shared)?;
     let status_publisher = transport.advertise(&declared.status)?;
+    let (stop_outputs, outputs_stopped) = std::sync::mpsc::sync_channel::<()>(1);
+    let output_publisher = outputs::start_output_publisher(
+        config,
+        &outputs::OutputEndpoints::declare(config)?,
+        transport,
+        &shared,
+        outputs_stopped,
+    )?;
     // Every interface is declared before the (slow) model load, so peers see the node at once.
     let (windows, worker) = worker::start_window_worker(config, &shared);
     let mut windows = windows;
@@ -132,6 +142,13 @@ pub fn run(
     if let Some(worker) = worker {
         if worker.join().is_err() {
             tracing::error!("the window worker panicked");
+        }
+    }
+    // The map is final: the output publisher publishes it once more, then stops.
+    drop(stop_outputs);
+    if let Some(publisher) = output_publisher {
+        if publisher.join().is_err() {
+            tracing::error!("the output publisher panicked");
         }
     }
     if windows_dropped > 0 {
@@ -345,6 +362,134 @@ mod tests {
         assert!(call("/groupforward/load_map", &copy.display().to_string()).success);
         assert_eq!(list(&bus), restored);
         assert!(bus.call("/groupforward/save_map", b"bad").is_err());
+        shutdown.store(true, Ordering::Relaxed);
+        runner.join().unwrap().unwrap();
+    }
+
+    /// Wait until the last message on `topic` satisfies `done`.
+    fn last_published<T: serde::de::DeserializeOwned>(
+        bus: &MemoryTransport,
+        topic: &str,
+        done: impl Fn(&T) -> bool,
+    ) -> T {
+        let deadline = Instant::now() + Duration::from_secs(5);
+        loop {
+            if let Some(last) = bus.published(topic).last() {
+                let message: T = cdr::decode(last).unwrap();
+                if done(&message) {
+                    return message;
+                }
+            }
+            assert!(Instant::now() < deadline, "nothing fitting on {topic}");
+            std::thread::sleep(Duration::from_millis(10));
+        }
+    }
+
+    #[test]
+    fn the_map_is_published_on_its_topics_after_each_change_and_again_for_late_joiners() {
+        use groupforward_msgs::gf_msgs::{InstanceArray, SceneGraph};
+        use groupforward_msgs::sensor_msgs::PointCloud2;
+        use groupforward_msgs::vision_msgs::Detection3DArray;
+        use groupforward_msgs::visualization_msgs::{Marker, MarkerArray};
+        let dir = tempfile::tempdir().unwrap();
+        let one = dir.path().join("one.gfmap");
+        persist::save(&one_instance_map(), &one).unwrap();
+        let mut two = one_instance_map();
+        let mut far = two.instances[0].gaussians.clone();
+        far.means.iter_mut().for_each(|m| m.x += 3.0);
+        two.fuse(
+            vec![crate::frame::WindowInstance {
+                gaussians: far,
+                prototype: vec![1.0, 0.0],
+                support: 25,
+            }],
+            &[],
+            9,
+        )
+        .unwrap();
+        let two_file = dir.path().join("two.gfmap");
+        persist::save(&two, &two_file).unwrap();
+        let mut config = Config::default();
+        config.map.file = Some(one.display().to_string());
+        config.outputs.republish_secs = 0.2;
+        let (bus, shutdown, runner) = start(&config);
+
+        // The restored map, on every topic, in the map frame.
+        let detections: Detection3DArray =
+            last_published(&bus, "/groupforward/instances", |d: &Detection3DArray| {
+                d.detections.len() == 1
+            });
+        assert_eq!(detections.header.frame_id, "map");
+        let detection = &detections.detections[0];
+        assert_eq!(detection.id, "inst_000001");
+        // The cube spans x 2.0..2.2, y 0..0.2 at z 0.5: its box centre is there.
+        assert!((detection.bbox.center.position.x - 2.1).abs() < 0.02);
+        assert!((detection.bbox.center.position.y - 0.1).abs() < 0.02);
+        let array: InstanceArray =
+            last_published(&bus, "/groupforward/instance_array", |_: &InstanceArray| {
+                true
+            });
+        let gaussians = one_instance_map().instances[0].gaussians.len() as u32;
+        assert_eq!(array.instances[0].point_count, gaussians);
+        let cloud: PointCloud2 =
+            last_published(&bus, "/groupforward/instance_cloud", |_: &PointCloud2| true);
+        assert_eq!(cloud.width, gaussians);
+        let ids: Vec<u32> = cloud
+            .data
+            .chunks_exact(cloud.point_step as usize)
+            .map(|p| u32::from_le_bytes(p[16..20].try_into().unwrap()))
+            .collect();
+        assert!(ids.iter().all(|&id| id == 1), "{ids:?}");
+        let graph: SceneGraph =
+            last_published(&bus, "/groupforward/scene_graph", |_: &SceneGraph| true);
+        assert_eq!(graph.nodes.len(), 1);
+        let json: serde_json::Value = serde_json::from_str(
+            &bus.get_json("groupforward/default/scene_graph", b"")
+                .unwrap(),
+        )
+        .unwrap();
+        assert_eq!(json["nodes"][0]["id"], "inst_000001");
+
+        // Nothing changes: the same messages come again, for subscribers that join late.
+        let before = bus.published("/groupforward/instances").len();
+        std::thread::sleep(Duration::from_millis(600));
+        assert!(bus.published("/groupforward/instances").len() > before);
+
+        // A second instance appears, then leaves: its box and label are deleted.
+        let request = |path: &std::path::Path| {
+            cdr::encode(&MapPathRequest {
+                path: path.display().to_string(),
+            })
+            .unwrap()
+        };
+        bus.call("/groupforward/load_map", &request(&two_file))
+            .unwrap();
+        last_published(&bus, "/groupforward/instances", |d: &Detection3DArray| {
+            d.detections.len() == 2
+        });
+        let graph: SceneGraph =
+            last_published(&bus, "/groupforward/scene_graph", |g: &SceneGraph| {
+                g.nodes.len() == 2
+            });
+        assert_eq!(graph.edges.len(), 1, "3 m apart: within the edge distance");
+        bus.call("/groupforward/load_map", &request(&one)).unwrap();
+        let markers: MarkerArray =
+            last_published(&bus, "/groupforward/markers", |m: &MarkerArray| {
+                m.markers.iter().any(|m| m.action == Marker::DELETE)
+            });
+        let deleted: Vec<(&str, i32)> = markers
+            .markers
+            .iter()
+            .filter(|m| m.action == Marker::DELETE)
+            .map(|m| (m.ns.as_str(), m.id))
+            .collect();
+        assert_eq!(deleted, [("instances", 2), ("labels", 2)]);
+        let kept = markers
+            .markers
+            .iter()
+            .filter(|m| m.action == Marker::ADD)
+            .count();
+        assert_eq!(kept, 2, "one box and one label");
         shutdown.store(true, Ordering::Relaxed);
         runner.join().unwrap().unwrap();
     }

@@ -22,6 +22,7 @@ use crate::graph::{persist, SceneMap};
 use crate::group::semantics::Vocabulary;
 use crate::ingest::{Ingest, Route};
 use crate::model::text::TextEncoder;
+use crate::outputs::ViewSource;
 use crate::recon::Rigid;
 use crate::refer::{self, ReferScene, ReferSection};
 use crate::transport::{Endpoint, Transport};
@@ -53,6 +54,10 @@ pub struct Shared {
     pub world_frame: String,
     /// Bumped whenever the map changes (a fused window, load_map).
     pub map_generation: u64,
+    /// The cameras and optical frames of the last window's views (masks are published in them).
+    pub view_sources: Vec<ViewSource>,
+    /// The last published scene graph as JSON (the `scene_graph` JSON API).
+    pub scene_graph_json: Option<serde_json::Value>,
 }
 
 fn time_of(nanos: i64) -> Time {
@@ -118,10 +123,17 @@ impl Shared {
 /// The referring snapshot of the current map: the stored one, or (after the map changed) a new
 /// one, built from a copy of the map without holding the lock.
 pub fn current_snapshot(shared: &Mutex<Shared>) -> std::result::Result<Arc<ReferScene>, String> {
+    current_snapshot_and_generation(shared).map(|(scene, _)| scene)
+}
+
+/// [`current_snapshot`] and the map generation it was taken of.
+pub fn current_snapshot_and_generation(
+    shared: &Mutex<Shared>,
+) -> std::result::Result<(Arc<ReferScene>, u64), String> {
     let (map, vocabulary, generation, boxes) = {
         let s = shared.lock().map_err(|e| e.to_string())?;
         if s.refer_scene_generation == s.map_generation {
-            return Ok(s.refer_scene.clone());
+            return Ok((s.refer_scene.clone(), s.map_generation));
         }
         // The listed instances' boxes were fitted when the map changed: reuse them.
         let boxes: std::collections::HashMap<String, crate::recon::boxes::OrientedBox> = s
@@ -141,7 +153,7 @@ pub fn current_snapshot(shared: &Mutex<Shared>) -> std::result::Result<Arc<Refer
         s.refer_scene = scene.clone();
         s.refer_scene_generation = generation;
     }
-    Ok(scene)
+    Ok((scene, generation))
 }
 
 fn map_path<'a>(shared: &'a Shared, requested: &'a str) -> std::result::Result<&'a str, String> {
@@ -458,9 +470,13 @@ fn handle_json(
     let value = match name {
         "status" => serde_json::to_value(&shared.status),
         "instances" => serde_json::to_value(&shared.instances),
+        "scene_graph" => Ok(shared
+            .scene_graph_json
+            .clone()
+            .unwrap_or_else(|| serde_json::json!({"nodes": [], "edges": []}))),
         other => {
             return Err(format!(
-                "unknown API `{other}`; available: status, instances, refer"
+                "unknown API `{other}`; available: status, instances, scene_graph, refer"
             ))
         }
     };
@@ -643,6 +659,9 @@ mod tests {
             serde_json::from_str(&handle_json(&shared, "status", "").unwrap()).unwrap();
         assert!(status["cameras"].is_array());
         let unknown = handle_json(&shared, "graph", "").unwrap_err();
-        assert!(unknown.contains("status, instances, refer"), "{unknown}");
+        assert!(
+            unknown.contains("status, instances, scene_graph, refer"),
+            "{unknown}"
+        );
     }
 }

@@ -9,6 +9,7 @@ use std::time::Instant;
 use super::services::Shared;
 use crate::config::Config;
 use crate::frame::SyncedFrame;
+use crate::outputs::ViewSource;
 use crate::window::WindowModels;
 
 /// Start the thread that loads the models, runs window passes and fuses their instances into the
@@ -62,10 +63,19 @@ pub(super) fn start_window_worker(
                     if let Some(e) = &output.semantics_error {
                         tracing::warn!("window without semantics: {e}");
                     }
+                    let sources: Vec<ViewSource> = frames
+                        .iter()
+                        .map(|f| ViewSource {
+                            stamp_nanos: f.stamp_nanos,
+                            camera: f.camera_name.clone(),
+                            frame_id: f.frame_id.clone(),
+                        })
+                        .collect();
                     let Ok(mut s) = shared.lock() else { return };
                     let found = output.instances.len();
                     match s.map.fuse(output.instances, &output.views, stamp) {
                         Ok(report) => {
+                            s.view_sources = sources;
                             s.refresh_instances();
                             tracing::info!(
                                 instances = found,

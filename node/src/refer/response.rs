@@ -163,7 +163,7 @@ pub fn label_image(instances: &[&Gaussians], keyframe: &Keyframe, scene_depth: &
         .collect()
 }
 
-fn mono16(header: Header, w: u32, h: u32, labels: &[u16]) -> Image {
+pub fn mono16(header: Header, w: u32, h: u32, labels: &[u16]) -> Image {
     Image {
         header,
         height: h,
@@ -258,14 +258,14 @@ pub fn response(
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::recon::camera::Camera;
     use crate::recon::Rigid;
     use glam::{Quat, Vec3};
 
     /// A square wall of Gaussians at depth `z` (camera frame = world frame) spanning x0..x1.
-    fn wall(x0: f32, x1: f32, z: f32) -> Gaussians {
+    pub(crate) fn wall(x0: f32, x1: f32, z: f32) -> Gaussians {
         let mut g = Gaussians::with_dims(0, 0);
         let mut x = x0;
         while x <= x1 {

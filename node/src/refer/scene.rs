@@ -10,13 +10,16 @@ use std::sync::Arc;
 use glam::DVec3;
 
 use crate::frame::Keyframe;
-use crate::graph::{GraphError, SceneMap};
+use crate::graph::{GraphError, SceneGraph, SceneMap};
 use crate::group::semantics::{Vocabulary, OTHER_PHRASE};
 use crate::recon::boxes::OrientedBox;
 use crate::recon::gaussians::Gaussians;
 
 /// Keyframes a snapshot keeps (newest first): what visibility and masks are computed in.
 pub const SNAPSHOT_VIEWS: usize = 4;
+/// Scene-graph edges join instances whose centres are at most this far apart (metres): a room's
+/// neighbours. Referring relations read boxes, not edges; the edges are for the published graph.
+pub const SNAPSHOT_EDGE_DISTANCE_M: f32 = 3.0;
 
 /// One object instance as a query sees it.
 #[derive(Debug, Clone, PartialEq)]
@@ -56,6 +59,8 @@ pub struct ReferScene {
     /// Newest first, with the map's depth rendered in each.
     pub keyframes: Vec<Keyframe>,
     pub depths: Vec<Vec<f32>>,
+    /// The scene graph over the same keyframes (every instance, structure included).
+    pub graph: SceneGraph,
     /// The map the snapshot was taken of: answers take their Gaussians from here, so an answer
     /// is consistent with the scores that chose it even when the live map moved on.
     pub map: Arc<SceneMap>,
@@ -75,7 +80,7 @@ impl ReferScene {
         vocabulary: Option<&Vocabulary>,
         boxes: &HashMap<String, OrientedBox>,
     ) -> Result<Self, GraphError> {
-        let (graph, depths) = map.graph_with_depths(SNAPSHOT_VIEWS, 0.0)?;
+        let (graph, depths) = map.graph_with_depths(SNAPSHOT_VIEWS, SNAPSHOT_EDGE_DISTANCE_M)?;
         let mut nodes = Vec::new();
         for (instance, node) in map.instances.iter().zip(&graph.nodes) {
             let names = vocabulary
@@ -130,6 +135,7 @@ impl ReferScene {
                 .cloned()
                 .collect(),
             depths,
+            graph,
             map: Arc::new(map),
         })
     }
