@@ -54,6 +54,8 @@ pub struct DemoOptions {
     pub scene: SceneFile,
     /// Replay speed factor of the recorded bag.
     pub rate: f64,
+    /// Write everything the node publishes to this rosbag2 bag directory.
+    pub record_outputs: Option<std::path::PathBuf>,
 }
 
 impl Default for DemoOptions {
@@ -61,6 +63,7 @@ impl Default for DemoOptions {
         Self {
             scene: SceneFile::builtin("two_chairs").unwrap_or_else(|| unreachable!()),
             rate: 0.5,
+            record_outputs: None,
         }
     }
 }
@@ -151,6 +154,8 @@ pub struct DemoReport {
     pub map_score: crate::eval::score::Counts,
     /// What the node's output topics carried last, as a subscriber received it.
     pub published: PublishedOutputs,
+    /// Messages written to the `record_outputs` bag, when one was asked for.
+    pub recorded_outputs: Option<u64>,
     pub elapsed: Duration,
 }
 
@@ -166,6 +171,8 @@ pub struct PublishedOutputs {
     pub scene_graph: Option<SceneGraph>,
     /// Messages received over all output topics.
     pub messages: u64,
+    /// Per topic name: messages and bytes received.
+    pub traffic: std::collections::BTreeMap<String, (u64, u64)>,
 }
 
 /// Received payloads by topic name.
@@ -219,6 +226,13 @@ fn decode_outputs(
         markers: last(&inbox, &endpoints.markers),
         scene_graph: last(&inbox, &endpoints.scene_graph),
         messages: inbox.values().map(|v| v.len() as u64).sum(),
+        traffic: inbox
+            .iter()
+            .map(|(topic, all)| {
+                let bytes = all.iter().map(|p| p.len() as u64).sum();
+                (topic.clone(), (all.len() as u64, bytes))
+            })
+            .collect(),
     }
 }
 
@@ -336,9 +350,24 @@ pub fn run_demo(options: &DemoOptions) -> Result<DemoReport> {
     let output_endpoints = crate::node::outputs::OutputEndpoints::declare(&config)?;
     let inbox = subscribe_outputs(&listener, &output_endpoints)?;
     let shutdown = Arc::new(AtomicBool::new(false));
+    let recorder = match &options.record_outputs {
+        Some(dir) => Some(
+            crate::record::Recorder::create(dir).map_err(|e| DemoError::Protocol(e.to_string()))?,
+        ),
+        None => None,
+    };
     let node_thread = {
-        let (config, shutdown) = (config.clone(), shutdown.clone());
-        std::thread::spawn(move || crate::node::run(&config, &node_transport, &shutdown))
+        let (config, shutdown, recorder) = (config.clone(), shutdown.clone(), recorder.clone());
+        std::thread::spawn(move || match recorder {
+            Some(recorder) => {
+                let recording = crate::record::RecordingTransport {
+                    inner: &node_transport,
+                    recorder,
+                };
+                crate::node::run(&config, &recording, &shutdown)
+            }
+            None => crate::node::run(&config, &node_transport, &shutdown),
+        })
     };
     let status_key = format!("{}/status", config.api_prefix());
     let timeout = Duration::from_secs(10);
@@ -492,6 +521,14 @@ pub fn run_demo(options: &DemoOptions) -> Result<DemoReport> {
         }
         Err(_) => return Err(DemoError::Protocol("the node thread panicked".into())),
     }
+    let recorded_outputs = match &recorder {
+        Some(recorder) => Some(
+            recorder
+                .finish()
+                .map_err(|e| DemoError::Protocol(e.to_string()))?,
+        ),
+        None => None,
+    };
     let classes = groupforward_sim::library::classes();
     let objects = sim
         .scene
@@ -530,6 +567,7 @@ pub fn run_demo(options: &DemoOptions) -> Result<DemoReport> {
         vocabulary: match_vocabulary(DEMO_QUERIES),
         map_score,
         published,
+        recorded_outputs,
         elapsed: started.elapsed(),
     })
 }

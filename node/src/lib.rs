@@ -38,6 +38,7 @@ pub mod model;
 pub mod node;
 pub mod outputs;
 pub mod recon;
+pub mod record;
 pub mod refer;
 pub mod replay;
 pub mod transport;

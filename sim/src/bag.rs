@@ -14,11 +14,11 @@ pub enum BagError {
     #[error("cannot encode a {0} message: {1}")]
     Encode(&'static str, cdr::CdrError),
     #[error("no embedded definition of {0}")]
-    UnknownType(&'static str),
+    UnknownType(String),
     #[error("bag file: {0}")]
     Io(std::io::Error),
     #[error("type hash of {0}: {1}")]
-    Hash(&'static str, groupforward_msgs::idl::IdlError),
+    Hash(String, groupforward_msgs::idl::IdlError),
 }
 
 pub type Result<T> = std::result::Result<T, BagError>;
@@ -80,7 +80,7 @@ impl OfferedQos {
 #[derive(Debug, Clone)]
 struct TopicRecord {
     channel: u16,
-    type_name: &'static str,
+    type_name: String,
     hash: String,
     count: u64,
     qos: OfferedQos,
@@ -124,17 +124,18 @@ impl<W: Write + Seek> BagWriter<W> {
         self.qos.insert(topic.to_owned(), qos);
     }
 
-    fn channel<T: RosMessage>(&mut self, topic: &str) -> Result<u16> {
+    fn channel(&mut self, topic: &str, type_name: &str) -> Result<u16> {
         if let Some(record) = self.topics.get_mut(topic) {
             record.count += 1;
             return Ok(record.channel);
         }
-        let definition = groupforward_msgs::idl::message_definition(T::TYPE_NAME)
-            .map_err(|_| BagError::UnknownType(T::TYPE_NAME))?;
+        let definition = groupforward_msgs::idl::message_definition(type_name)
+            .map_err(|_| BagError::UnknownType(type_name.to_owned()))?;
         let schema = self
             .writer
-            .add_schema(T::TYPE_NAME, "ros2msg", definition.as_bytes())?;
-        let hash = T::type_hash().map_err(|e| BagError::Hash(T::TYPE_NAME, e))?;
+            .add_schema(type_name, "ros2msg", definition.as_bytes())?;
+        let hash = groupforward_msgs::idl::type_hash(type_name)
+            .map_err(|e| BagError::Hash(type_name.to_owned(), e))?;
         let qos = self.qos.get(topic).copied().unwrap_or_default();
         let metadata = BTreeMap::from([
             ("topic_type_hash".to_owned(), hash.clone()),
@@ -145,7 +146,7 @@ impl<W: Write + Seek> BagWriter<W> {
             topic.to_owned(),
             TopicRecord {
                 channel: id,
-                type_name: T::TYPE_NAME,
+                type_name: type_name.to_owned(),
                 hash,
                 count: 1,
                 qos,
@@ -161,7 +162,20 @@ impl<W: Write + Seek> BagWriter<W> {
         log_time_nanos: i64,
         message: &T,
     ) -> Result<()> {
-        let channel_id = self.channel::<T>(topic)?;
+        let data = cdr::encode(message).map_err(|e| BagError::Encode(T::TYPE_NAME, e))?;
+        self.write_encoded(topic, T::TYPE_NAME, log_time_nanos, &data)
+    }
+
+    /// Record an already CDR-encoded message of type `type_name` (`pkg/msg/Type`, one the
+    /// embedded IDL defines) on `topic` at `log_time_nanos`.
+    pub fn write_encoded(
+        &mut self,
+        topic: &str,
+        type_name: &str,
+        log_time_nanos: i64,
+        data: &[u8],
+    ) -> Result<()> {
+        let channel_id = self.channel(topic, type_name)?;
         self.sequence += 1;
         self.first_nanos = Some(
             self.first_nanos
@@ -175,8 +189,7 @@ impl<W: Write + Seek> BagWriter<W> {
             log_time: time,
             publish_time: time,
         };
-        let data = cdr::encode(message).map_err(|e| BagError::Encode(T::TYPE_NAME, e))?;
-        self.writer.write_to_known_channel(&header, &data)?;
+        self.writer.write_to_known_channel(&header, data)?;
         Ok(())
     }
 

@@ -55,7 +55,7 @@ def binary():
 class Node:
     """A running `groupforward run` process and a zenoh client session connected to it."""
 
-    def __init__(self, binary, tmp_path, depth=False):
+    def __init__(self, binary, tmp_path, depth=False, extra_args=()):
         self.port = free_port()
         self.endpoint = f'tcp/127.0.0.1:{self.port}'
         config = tmp_path / 'node.yaml'
@@ -76,7 +76,7 @@ cameras:
     {depth_line}
 """)
         self.log = open(tmp_path / 'node.log', 'w')  # noqa: SIM115
-        self.process = subprocess.Popen([str(binary), 'run', '--config', str(config)],
+        self.process = subprocess.Popen([str(binary), 'run', '--config', str(config), *extra_args],
                                         stdout=subprocess.PIPE, stderr=self.log, text=True)
         conf = zenoh.Config()
         conf.insert_json5('mode', '"client"')

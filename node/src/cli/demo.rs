@@ -21,11 +21,16 @@ pub struct DemoArgs {
     /// a moving robot), `dropout:<p>`.
     #[arg(long)]
     effects: Option<String>,
+    /// Also write every topic the node publishes to a rosbag2 bag directory (MCAP +
+    /// metadata.yaml), e.g. to open the run in Foxglove.
+    #[arg(long, value_name = "DIR")]
+    record_outputs: Option<std::path::PathBuf>,
 }
 
 pub fn run(args: DemoArgs) -> Result<()> {
     let mut options = DemoOptions {
         rate: args.rate,
+        record_outputs: args.record_outputs,
         ..Default::default()
     };
     if let Some(spec) = args.scene {
@@ -180,7 +185,7 @@ fn print_report(report: &DemoReport) {
             path.display()
         );
     }
-    print_published(&report.published);
+    print_published(&report.published, report.recorded_outputs);
     match &report.vocabulary {
         Ok(matches) => {
             println!("  open vocabulary (all-MiniLM-L6-v2 int8 via ONNX Runtime), phrase -> sim class by name, description or affordance:");
@@ -194,21 +199,33 @@ fn print_report(report: &DemoReport) {
 }
 
 /// What a subscriber of the node's output topics received: one line per topic.
-fn print_published(p: &groupforward::demo::PublishedOutputs) {
+fn print_published(p: &groupforward::demo::PublishedOutputs, recorded: Option<u64>) {
     println!(
-        "  published topics, as a subscriber (RViz, a navigation stack) received them ({} messages, map frame):",
-        p.messages
+        "  published topics, as a subscriber (RViz, a navigation stack) received them (map frame; messages, bytes; the last message):",
     );
+    let traffic = |topic: &str| {
+        let (messages, bytes) = p
+            .traffic
+            .get(&format!("/groupforward/{topic}"))
+            .copied()
+            .unwrap_or_default();
+        format!(
+            "~/{topic:<15} {messages:>3} msgs {:>8.1} kB",
+            bytes as f64 / 1e3
+        )
+    };
     match &p.detections {
         Some(d) => println!(
-            "    ~/instances        vision_msgs/Detection3DArray: {} detections (id, class hypotheses, oriented box)",
+            "    {} vision_msgs/Detection3DArray: {} detections (id, class hypotheses, oriented box)",
+            traffic("instances"),
             d.detections.len()
         ),
-        None => println!("    ~/instances        nothing received"),
+        None => println!("    {} nothing received", traffic("instances")),
     }
     if let Some(a) = &p.instance_array {
         println!(
-            "    ~/instance_array   groupforward_msgs/InstanceArray: {} instances ({} Gaussians)",
+            "    {} groupforward_msgs/InstanceArray: {} instances ({} Gaussians)",
+            traffic("instance_array"),
             a.instances.len(),
             a.instances
                 .iter()
@@ -223,7 +240,8 @@ fn print_published(p: &groupforward::demo::PublishedOutputs) {
             .filter_map(|point| point.get(16..20)?.try_into().ok())
             .collect();
         println!(
-            "    ~/instance_cloud   sensor_msgs/PointCloud2: {} points of {} instances (x, y, z, rgb, instance_id)",
+            "    {} sensor_msgs/PointCloud2: {} points of {} instances (x, y, z, rgb, instance_id)",
+            traffic("instance_cloud"),
             c.width,
             ids.len()
         );
@@ -238,8 +256,8 @@ fn print_published(p: &groupforward::demo::PublishedOutputs) {
         let cameras: std::collections::BTreeSet<&str> =
             p.masks.iter().map(|m| m.camera.as_str()).collect();
         println!(
-            "    ~/instance_masks   groupforward_msgs/InstanceMasks: {} label images (mono16, cameras {:?}), {:.0}% of pixels on an instance",
-            p.masks.len(),
+            "    {} groupforward_msgs/InstanceMasks: one per view (mono16, cameras {:?}), {:.0}% of pixels on an instance",
+            traffic("instance_masks"),
             cameras,
             100.0 * labelled as f64 / pixels.max(1) as f64
         );
@@ -247,7 +265,8 @@ fn print_published(p: &groupforward::demo::PublishedOutputs) {
     if let Some(m) = &p.markers {
         let adds = m.markers.iter().filter(|m| m.action == 0).count();
         println!(
-            "    ~/markers          visualization_msgs/MarkerArray: {} boxes, {} labels, {} deletions",
+            "    {} visualization_msgs/MarkerArray: {} boxes, {} labels, {} deletions",
+            traffic("markers"),
             adds / 2,
             adds / 2,
             m.markers.len() - adds
@@ -255,9 +274,13 @@ fn print_published(p: &groupforward::demo::PublishedOutputs) {
     }
     if let Some(g) = &p.scene_graph {
         println!(
-            "    ~/scene_graph      groupforward_msgs/SceneGraph: {} nodes, {} edges (also JSON: the scene_graph API)",
+            "    {} groupforward_msgs/SceneGraph: {} nodes, {} edges (also JSON: the scene_graph API)",
+            traffic("scene_graph"),
             g.nodes.len(),
             g.edges.len()
         );
+    }
+    if let Some(messages) = recorded {
+        println!("    recorded to a rosbag2 bag (--record-outputs): {messages} messages");
     }
 }

@@ -4,6 +4,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 
 use anyhow::{Context, Result};
+use groupforward::record::{Recorder, RecordingTransport};
 use groupforward::transport::{open_session, ZenohTransport};
 
 use crate::zenoh_args::ZenohArgs;
@@ -15,6 +16,10 @@ pub struct RunArgs {
     /// Stop after this many seconds (default: run until interrupted).
     #[arg(long)]
     duration_secs: Option<f64>,
+    /// Also write every topic the node publishes to a rosbag2 bag directory (MCAP +
+    /// metadata.yaml), closed when the node stops (Ctrl-C, SIGTERM or --duration-secs).
+    #[arg(long, value_name = "DIR")]
+    record_outputs: Option<std::path::PathBuf>,
 }
 
 pub fn run(args: RunArgs) -> Result<()> {
@@ -39,7 +44,57 @@ pub fn run(args: RunArgs) -> Result<()> {
         Ok(library) => tracing::info!("ONNX Runtime loaded from {}", library.display()),
         Err(e) => tracing::error!("models unavailable: {e}"),
     }
-    let status = groupforward::node::run(&config, &transport, &shutdown)?;
+    stop_on_signal(&shutdown);
+    let status = match &args.record_outputs {
+        Some(dir) => {
+            let recorder = Recorder::create(dir)?;
+            let recording = RecordingTransport {
+                inner: &transport,
+                recorder: recorder.clone(),
+            };
+            let status = groupforward::node::run(&config, &recording, &shutdown)?;
+            let messages = recorder.finish()?;
+            tracing::info!("recorded {messages} messages to {}", dir.display());
+            status
+        }
+        None => groupforward::node::run(&config, &transport, &shutdown)?,
+    };
     println!("{}", serde_json::to_string(&status)?);
     Ok(())
+}
+
+/// Ctrl-C or SIGTERM stop the node cleanly (the map and a recorded bag are closed), as a ROS
+/// node stops under `ros2 launch`.
+fn stop_on_signal(shutdown: &Arc<AtomicBool>) {
+    let stop = shutdown.clone();
+    std::thread::spawn(move || {
+        let Ok(runtime) = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+        else {
+            return;
+        };
+        runtime.block_on(async {
+            #[cfg(unix)]
+            {
+                use tokio::signal::unix::{signal, SignalKind};
+                match signal(SignalKind::terminate()) {
+                    Ok(mut terminate) => {
+                        tokio::select! {
+                            _ = tokio::signal::ctrl_c() => {}
+                            _ = terminate.recv() => {}
+                        }
+                    }
+                    Err(_) => {
+                        let _ = tokio::signal::ctrl_c().await;
+                    }
+                }
+            }
+            #[cfg(not(unix))]
+            {
+                let _ = tokio::signal::ctrl_c().await;
+            }
+        });
+        stop.store(true, Ordering::Relaxed);
+    });
 }
