@@ -29,7 +29,7 @@ use groupforward_msgs::visualization_msgs::{Marker, MarkerArray};
 use serde::{Deserialize, Serialize};
 
 use crate::recon::gaussians::Gaussians;
-use crate::refer::response::{instance_cloud, label_image, mono16, numeric_id};
+use crate::refer::response::{instance_cloud, mono16, numeric_id};
 use crate::refer::scene::ReferScene;
 
 pub const DEFAULT_OUTPUT_RATE_HZ: f64 = 2.0;
@@ -192,21 +192,32 @@ pub fn cloud(
 }
 
 /// Per keyframe of the snapshot (the last window's views, newest first), the label image of the
-/// listed instances, cut by the whole map's rendered depth there. `sources` name each keyframe's
-/// camera and optical frame (by stamp); a keyframe without one is published with empty names.
+/// listed instances: the snapshot's whole-map render (nearest surface wins, so what structure or
+/// other instances hide stays out), with unlisted instances (structure) as 0. `sources` name each
+/// keyframe's camera and optical frame (by stamp); a keyframe without one has empty names.
 pub fn masks(
     scene: &ReferScene,
     instances: &[Instance],
     sources: &[ViewSource],
 ) -> Vec<InstanceMasks> {
-    let listed = listed_gaussians(scene, instances);
-    let gaussians: Vec<&Gaussians> = listed.iter().map(|(_, g)| *g).collect();
-    let ids: Vec<String> = listed.iter().map(|(i, _)| i.id.clone()).collect();
+    // Map instance index -> label (1 + position in the list; 0 = not listed).
+    let position: HashMap<&str, u16> = instances
+        .iter()
+        .enumerate()
+        .map(|(k, i)| (i.id.as_str(), (k + 1).min(usize::from(u16::MAX)) as u16))
+        .collect();
+    let label_of: Vec<u16> = scene
+        .map
+        .instances
+        .iter()
+        .map(|i| position.get(i.id.as_str()).copied().unwrap_or(0))
+        .collect();
+    let ids: Vec<String> = instances.iter().map(|i| i.id.clone()).collect();
     scene
         .keyframes
         .iter()
-        .zip(&scene.depths)
-        .map(|(keyframe, depth)| {
+        .zip(&scene.labels)
+        .map(|(keyframe, pixels)| {
             let source = sources
                 .iter()
                 .find(|s| s.stamp_nanos == keyframe.stamp_nanos)
@@ -216,7 +227,13 @@ pub fn masks(
                 stamp: Time::from_nanos(keyframe.stamp_nanos),
                 frame_id: source.frame_id,
             };
-            let labels = label_image(&gaussians, keyframe, depth);
+            let labels: Vec<u16> = pixels
+                .iter()
+                .map(|p| {
+                    p.and_then(|k| label_of.get(k as usize).copied())
+                        .unwrap_or(0)
+                })
+                .collect();
             InstanceMasks {
                 header: header.clone(),
                 camera: source.camera,
@@ -505,6 +522,13 @@ mod tests {
         assert_eq!(label(44), 1);
         // A keyframe no source names is still published, without names.
         assert_eq!(masks[1].camera, "");
+        // An instance not listed (structure) is no label: its pixels are 0.
+        let only_first = super::masks(&scene, &instances[..1], &sources);
+        let at = |col: usize| {
+            let o = (24 * 64 + col) * 2;
+            u16::from_le_bytes([only_first[0].mask.data[o], only_first[0].mask.data[o + 1]])
+        };
+        assert_eq!((at(20), at(44)), (1, 0));
     }
 
     #[test]

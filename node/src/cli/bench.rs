@@ -64,6 +64,20 @@ pub enum BenchCommand {
         #[arg(long, default_value = "target/bench/refer")]
         out: PathBuf,
     },
+    /// What publishing the map costs: instance list, snapshot and every output topic encoded,
+    /// against maps of growing size, as a share of a window pass; writes `<out>.csv`, `<out>.md`.
+    Outputs {
+        /// Instances in the map, comma separated.
+        #[arg(long, value_delimiter = ',', default_values_t = vec![50, 500])]
+        instances: Vec<usize>,
+        /// Gaussians in the map (over all instances), comma separated.
+        #[arg(long, value_delimiter = ',', default_values_t = vec![100_000, 1_000_000])]
+        gaussians: Vec<usize>,
+        #[arg(long, default_value_t = 3)]
+        rounds: usize,
+        #[arg(long, default_value = "target/bench/outputs")]
+        out: PathBuf,
+    },
     /// The map against random depth dropout: `eval map` on the same scenes with each level's
     /// `dropout:<p>` effect (0 = clean); writes `<out>.csv`, `<out>.md` and `<out>.svg`.
     Dropout {
@@ -275,6 +289,12 @@ pub fn run(command: BenchCommand) -> Result<()> {
             rounds,
             out,
         } => crate::bench_refer::refer_bench(&instances, rounds, &out),
+        BenchCommand::Outputs {
+            instances,
+            gaussians,
+            rounds,
+            out,
+        } => crate::bench_outputs::outputs_bench(&instances, &gaussians, rounds, &out),
         BenchCommand::Dropout {
             levels,
             split,

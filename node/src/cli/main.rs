@@ -2,6 +2,7 @@
 //! the node, this binary wires them up.
 
 mod bench;
+mod bench_outputs;
 mod bench_refer;
 mod bench_support;
 mod demo;

@@ -9,7 +9,7 @@ use super::fusion::SceneMap;
 use super::instance::Instance;
 use crate::frame::Keyframe;
 use crate::recon::gaussians::Gaussians;
-use crate::recon::raster::{render, RasterSettings};
+use crate::recon::raster::{render_labels, LabelRender, RasterSettings};
 
 impl SceneMap {
     /// The scene graph over the `views` newest keyframes.
@@ -25,26 +25,36 @@ impl SceneMap {
         views: usize,
         max_edge_distance: f32,
     ) -> Result<(SceneGraph, Vec<Vec<f32>>), GraphError> {
+        self.graph_with_renders(views, max_edge_distance)
+            .map(|(graph, renders)| (graph, renders.into_iter().map(|r| r.depth).collect()))
+    }
+
+    /// The scene graph and, per keyframe of the graph (newest first), the whole map rendered
+    /// there with each pixel's instance (index into `instances`): depth is the occlusion
+    /// reference, labels are the map's instance masks in that view.
+    pub fn graph_with_renders(
+        &self,
+        views: usize,
+        max_edge_distance: f32,
+    ) -> Result<(SceneGraph, Vec<LabelRender>), GraphError> {
         let keyframes: Vec<&Keyframe> = self.keyframes.iter().rev().take(views).collect();
-        // One depth render of the whole map per keyframe: the occlusion reference.
+        // One render of the whole map per keyframe, labelled by instance.
         let mut all = Gaussians::with_dims(0, 0);
         let mut owner = Vec::new();
         for (k, instance) in self.instances.iter().enumerate() {
             all.extend_geometry(&instance.gaussians);
-            owner.extend(std::iter::repeat_n(k, instance.gaussians.len()));
+            owner.extend(std::iter::repeat_n(k as u32, instance.gaussians.len()));
         }
-        let depths: Vec<Vec<f32>> = keyframes
+        let renders: Vec<LabelRender> = keyframes
             .iter()
             .map(|kf| {
-                render(
+                render_labels(
                     &all,
-                    &[],
-                    0,
+                    &owner,
                     &kf.camera,
                     &kf.world_from_camera.inverse(),
                     &RasterSettings::default(),
                 )
-                .map(|r| r.depth)
                 .map_err(|e| GraphError::Render(e.to_string()))
             })
             .collect::<Result<_, _>>()?;
@@ -56,8 +66,8 @@ impl SceneMap {
                 let extent = hi - lo;
                 let views = keyframes
                     .iter()
-                    .zip(&depths)
-                    .map(|(kf, depth)| node_view(instance, kf, depth, self.params.depth_tolerance))
+                    .zip(&renders)
+                    .map(|(kf, r)| node_view(instance, kf, &r.depth, self.params.depth_tolerance))
                     .collect();
                 GraphNode {
                     id: instance.id.clone(),
@@ -101,7 +111,7 @@ impl SceneMap {
             nodes,
             edges,
         };
-        Ok((graph, depths))
+        Ok((graph, renders))
     }
 }
 

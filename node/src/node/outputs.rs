@@ -91,14 +91,30 @@ struct Publishers {
 }
 
 /// One publication: every message already serialized, kept for republishing.
-#[derive(Default)]
-struct Encoded {
-    instances: Vec<u8>,
-    instance_array: Vec<u8>,
-    instance_cloud: Vec<u8>,
-    instance_masks: Vec<Vec<u8>>,
-    markers: Vec<u8>,
-    scene_graph: Vec<u8>,
+#[derive(Debug, Default)]
+pub struct Encoded {
+    pub instances: Vec<u8>,
+    pub instance_array: Vec<u8>,
+    pub instance_cloud: Vec<u8>,
+    pub instance_masks: Vec<Vec<u8>>,
+    pub markers: Vec<u8>,
+    pub scene_graph: Vec<u8>,
+}
+
+impl Encoded {
+    /// Bytes over all messages.
+    pub fn len(&self) -> usize {
+        self.instances.len()
+            + self.instance_array.len()
+            + self.instance_cloud.len()
+            + self.instance_masks.iter().map(Vec::len).sum::<usize>()
+            + self.markers.len()
+            + self.scene_graph.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
 }
 
 impl Publishers {
@@ -214,9 +230,10 @@ fn publish_loop(
     }
 }
 
-/// Encode every output from one snapshot; `None` when the instance list and the snapshot are of
-/// different map generations (a window landed in between).
-fn encode(
+/// Encode every output from one snapshot (taking it if the map changed since the last one);
+/// `None` when the instance list and the snapshot are of different map generations (a window
+/// landed in between). `listed_before` (ids of the previous publication) gets this one's.
+pub fn encode(
     section: &OutputsSection,
     shared: &Mutex<Shared>,
     listed_before: &mut BTreeSet<String>,

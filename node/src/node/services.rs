@@ -1,6 +1,7 @@
 //! What the node serves: the state shared with service handlers (the map and its instance
 //! messages), the list / get / save / load services, the JSON API, and their declaration.
 
+use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 
 use glam::{DQuat, DVec3};
@@ -23,6 +24,7 @@ use crate::group::semantics::Vocabulary;
 use crate::ingest::{Ingest, Route};
 use crate::model::text::TextEncoder;
 use crate::outputs::ViewSource;
+use crate::recon::boxes::OrientedBox;
 use crate::recon::Rigid;
 use crate::refer::{self, ReferScene, ReferSection};
 use crate::transport::{Endpoint, Transport};
@@ -58,6 +60,8 @@ pub struct Shared {
     pub view_sources: Vec<ViewSource>,
     /// The last published scene graph as JSON (the `scene_graph` JSON API).
     pub scene_graph_json: Option<serde_json::Value>,
+    /// Boxes of the listed instances, refitted only when their Gaussians change.
+    pub boxes: BoxCache,
 }
 
 fn time_of(nanos: i64) -> Time {
@@ -73,11 +77,48 @@ pub fn instance_messages(
     vocabulary: Option<&Vocabulary>,
     hypotheses: usize,
 ) -> Vec<Instance> {
-    map.instances
+    instance_messages_cached(map, vocabulary, hypotheses, &mut BoxCache::default())
+}
+
+/// Fitted boxes by instance id, with the fingerprint of the Gaussians they were fitted to: a
+/// window changes a few instances, so only those are fitted again.
+#[derive(Debug, Clone, Default)]
+pub struct BoxCache(HashMap<String, (Fingerprint, OrientedBox)>);
+
+/// Count and coordinate sums of an instance's Gaussians: changes whenever they change.
+type Fingerprint = (usize, [u64; 3]);
+
+fn fingerprint(g: &crate::recon::gaussians::Gaussians) -> Fingerprint {
+    let sum = g.means.iter().fold([0.0f64; 3], |s, m| {
+        [
+            s[0] + f64::from(m.x),
+            s[1] + f64::from(m.y),
+            s[2] + f64::from(m.z),
+        ]
+    });
+    (g.len(), sum.map(f64::to_bits))
+}
+
+/// As [`instance_messages`], fitting only the boxes of instances whose Gaussians changed since
+/// `cache` saw them; `cache` keeps the boxes of the instances listed now.
+pub fn instance_messages_cached(
+    map: &SceneMap,
+    vocabulary: Option<&Vocabulary>,
+    hypotheses: usize,
+    cache: &mut BoxCache,
+) -> Vec<Instance> {
+    let mut fitted = HashMap::new();
+    let messages = map
+        .instances
         .iter()
         .filter(|i| !vocabulary.is_some_and(|v| v.is_structure(&i.prototype)))
         .map(|i| {
-            let b = i.oriented_box();
+            let print = fingerprint(&i.gaussians);
+            let b = match cache.0.get(&i.id) {
+                Some((seen, b)) if *seen == print => *b,
+                _ => i.oriented_box(),
+            };
+            fitted.insert(i.id.clone(), (print, b));
             Instance {
                 id: i.id.clone(),
                 hypotheses: vocabulary
@@ -102,7 +143,9 @@ pub fn instance_messages(
                 ..Default::default()
             }
         })
-        .collect()
+        .collect();
+    cache.0 = fitted;
+    messages
 }
 
 impl Shared {
@@ -115,7 +158,12 @@ impl Shared {
     /// Rebuild the instance messages after the map changed in place; the referring snapshot is
     /// retaken by the next query.
     pub fn refresh_instances(&mut self) {
-        self.instances = instance_messages(&self.map, self.vocabulary.as_ref(), self.hypotheses);
+        self.instances = instance_messages_cached(
+            &self.map,
+            self.vocabulary.as_ref(),
+            self.hypotheses,
+            &mut self.boxes,
+        );
         self.map_generation += 1;
     }
 }
@@ -136,7 +184,7 @@ pub fn current_snapshot_and_generation(
             return Ok((s.refer_scene.clone(), s.map_generation));
         }
         // The listed instances' boxes were fitted when the map changed: reuse them.
-        let boxes: std::collections::HashMap<String, crate::recon::boxes::OrientedBox> = s
+        let boxes: HashMap<String, OrientedBox> = s
             .instances
             .iter()
             .map(|i| (i.id.clone(), refer::response::pose_box(&i.pose, &i.size)))
@@ -593,6 +641,53 @@ mod tests {
             ],
             ..Default::default()
         }
+    }
+
+    #[test]
+    fn cached_boxes_are_refitted_exactly_where_the_gaussians_changed() {
+        use crate::frame::WindowInstance;
+        use crate::graph::FusionParams;
+        let cube = |x: f32| {
+            let mut g = crate::recon::gaussians::Gaussians::with_dims(0, 0);
+            for i in 0..27 {
+                let offset = glam::Vec3::new((i % 3) as f32, (i / 3 % 3) as f32, (i / 9) as f32);
+                g.push(
+                    glam::Vec3::new(x, 0.0, 0.5) + offset * 0.1,
+                    0.9,
+                    glam::Vec3::splat(0.02),
+                    glam::Quat::IDENTITY,
+                    glam::Vec3::ONE,
+                    &[],
+                    &[],
+                );
+            }
+            g
+        };
+        let mut map = SceneMap::new(FusionParams::default());
+        let window = (0..3)
+            .map(|k| WindowInstance {
+                gaussians: cube(2.0 * k as f32),
+                prototype: vec![1.0, k as f32],
+                support: 27,
+            })
+            .collect();
+        map.fuse(window, &[], 1).unwrap();
+        let mut cache = BoxCache::default();
+        let first = instance_messages_cached(&map, None, 3, &mut cache);
+        assert_eq!(first, instance_messages(&map, None, 3));
+        // The middle instance moves by a metre; the others stay.
+        for m in &mut map.instances[1].gaussians.means {
+            m.x += 1.0;
+        }
+        let second = instance_messages_cached(&map, None, 3, &mut cache);
+        assert_eq!(second, instance_messages(&map, None, 3), "no stale box");
+        assert!((second[1].pose.position.x - first[1].pose.position.x - 1.0).abs() < 1e-6);
+        assert_eq!(second[0], first[0]);
+        assert_eq!(second[2], first[2]);
+        // An instance that left the map leaves the cache.
+        map.instances.remove(2);
+        instance_messages_cached(&map, None, 3, &mut cache);
+        assert_eq!(cache.0.len(), 2);
     }
 
     fn shared() -> Mutex<Shared> {

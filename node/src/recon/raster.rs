@@ -232,28 +232,42 @@ fn project(
     })
 }
 
-/// Render `channels` feature values per Gaussian (`features`, Gaussian-major) into `camera`
-/// seen from `camera_from_world`. Deterministic: the same inputs give bit-identical outputs
-/// whatever the thread count.
-pub fn render(
+/// Splats of the visible Gaussians and, per tile, its (tile, depth, splat) keys front to back.
+struct Binned {
+    splats: Vec<Splat>,
+    keys: Vec<u128>,
+    ranges: Vec<(usize, usize)>,
+    tiles_x: usize,
+}
+
+impl Binned {
+    /// Tile (`tx`, `ty`)'s pixel bounds and its splats, front to back.
+    fn tile(
+        &self,
+        tx: usize,
+        ty: usize,
+        tile: usize,
+        width: usize,
+        height: usize,
+    ) -> (TileBounds, impl Iterator<Item = usize> + '_) {
+        let bounds = TileBounds {
+            x0: tx * tile,
+            y0: ty * tile,
+            x1: ((tx + 1) * tile).min(width),
+            y1: ((ty + 1) * tile).min(height),
+        };
+        let (a, b) = self.ranges[ty * self.tiles_x + tx];
+        let order = self.keys[a..b].iter().map(|k| (*k & 0xffff_ffff) as usize);
+        (bounds, order)
+    }
+}
+
+fn bin(
     g: &Gaussians,
-    features: &[f32],
-    channels: usize,
     camera: &Camera,
     camera_from_world: &Rigid,
     settings: &RasterSettings,
-) -> Result<Render> {
-    check_inputs(g, features, channels, camera, camera_from_world, settings)?;
-    if channels == 0 {
-        // Output bands are split by channel count; render one zero channel for alpha and depth.
-        let zeros = vec![0.0; g.len()];
-        let rendered = render(g, &zeros, 1, camera, camera_from_world, settings)?;
-        return Ok(Render {
-            channels: 0,
-            features: Vec::new(),
-            ..rendered
-        });
-    }
+) -> Binned {
     let (width, height) = (camera.width as usize, camera.height as usize);
     let tile = settings.tile_size;
     let (tiles_x, tiles_y) = (width.div_ceil(tile), height.div_ceil(tile));
@@ -307,6 +321,39 @@ pub fn render(
         start = end;
     }
 
+    Binned {
+        splats,
+        keys,
+        ranges,
+        tiles_x,
+    }
+}
+
+/// Render `channels` feature values per Gaussian (`features`, Gaussian-major) into `camera`
+/// seen from `camera_from_world`. Deterministic: the same inputs give bit-identical outputs
+/// whatever the thread count.
+pub fn render(
+    g: &Gaussians,
+    features: &[f32],
+    channels: usize,
+    camera: &Camera,
+    camera_from_world: &Rigid,
+    settings: &RasterSettings,
+) -> Result<Render> {
+    check_inputs(g, features, channels, camera, camera_from_world, settings)?;
+    if channels == 0 {
+        // Output bands are split by channel count; render one zero channel for alpha and depth.
+        let zeros = vec![0.0; g.len()];
+        let rendered = render(g, &zeros, 1, camera, camera_from_world, settings)?;
+        return Ok(Render {
+            channels: 0,
+            features: Vec::new(),
+            ..rendered
+        });
+    }
+    let (width, height) = (camera.width as usize, camera.height as usize);
+    let tile = settings.tile_size;
+    let binned = bin(g, camera, camera_from_world, settings);
     let mut out = Render::empty(width, height, channels);
     // Tile rows own disjoint bands of the output, so each is composited and written in parallel.
     let band = tile * width;
@@ -316,16 +363,9 @@ pub fn render(
         .zip(out.depth.par_chunks_mut(band))
         .enumerate()
         .for_each(|(ty, ((features_band, alpha_band), depth_band))| {
-            for tx in 0..tiles_x {
-                let bounds = TileBounds {
-                    x0: tx * tile,
-                    y0: ty * tile,
-                    x1: ((tx + 1) * tile).min(width),
-                    y1: ((ty + 1) * tile).min(height),
-                };
-                let (a, b) = ranges[ty * tiles_x + tx];
-                let order = keys[a..b].iter().map(|k| (*k & 0xffff_ffff) as usize);
-                let tile_out = composite_tile(&bounds, order, &splats, features, channels);
+            for tx in 0..binned.tiles_x {
+                let (bounds, order) = binned.tile(tx, ty, tile, width, height);
+                let tile_out = composite_tile(&bounds, order, &binned.splats, features, channels);
                 let tw = bounds.x1 - bounds.x0;
                 for y in bounds.y0..bounds.y1 {
                     for x in bounds.x0..bounds.x1 {
@@ -341,6 +381,94 @@ pub fn render(
                         features_band[pixel * channels..(pixel + 1) * channels].copy_from_slice(
                             &tile_out.features[local * channels..(local + 1) * channels],
                         );
+                    }
+                }
+            }
+        });
+    Ok(out)
+}
+
+/// A label image: per pixel the label carrying the largest share of the pixel's blend weight
+/// (`None` where nothing rendered), with alpha and depth as [`render`] gives them.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LabelRender {
+    pub width: usize,
+    pub height: usize,
+    pub labels: Vec<Option<u32>>,
+    pub alpha: Vec<f32>,
+    pub depth: Vec<f32>,
+}
+
+/// Render one label per Gaussian (`labels[i]` for Gaussian `i`): per pixel the label whose
+/// Gaussians carry most of its blend weight. The same answer as rendering one one-hot channel per
+/// label and taking the largest, at the cost of one channel whatever the number of labels.
+pub fn render_labels(
+    g: &Gaussians,
+    labels: &[u32],
+    camera: &Camera,
+    camera_from_world: &Rigid,
+    settings: &RasterSettings,
+) -> Result<LabelRender> {
+    check_inputs(g, &[], 0, camera, camera_from_world, settings)?;
+    if labels.len() != g.len() {
+        return Err(RasterError::FeatureLength {
+            got: labels.len(),
+            expected: g.len(),
+            gaussians: g.len(),
+            channels: 1,
+        });
+    }
+    let (width, height) = (camera.width as usize, camera.height as usize);
+    let tile = settings.tile_size;
+    let binned = bin(g, camera, camera_from_world, settings);
+    let mut out = LabelRender {
+        width,
+        height,
+        labels: vec![None; width * height],
+        alpha: vec![0.0; width * height],
+        depth: vec![0.0; width * height],
+    };
+    let band = tile * width;
+    out.labels
+        .par_chunks_mut(band)
+        .zip(out.alpha.par_chunks_mut(band))
+        .zip(out.depth.par_chunks_mut(band))
+        .enumerate()
+        .for_each(|(ty, ((labels_band, alpha_band), depth_band))| {
+            for tx in 0..binned.tiles_x {
+                let (bounds, order) = binned.tile(tx, ty, tile, width, height);
+                let n = (bounds.x1 - bounds.x0) * (bounds.y1 - bounds.y0);
+                // Per pixel its labels' weights: a few entries (one per surface it sees).
+                let mut slots: Vec<Vec<(u32, f32)>> = vec![Vec::new(); n];
+                let (transmittance, depth) =
+                    composite(&bounds, order, &binned.splats, |local, index, weight| {
+                        let label = labels[index];
+                        let pixel = &mut slots[local];
+                        match pixel.iter_mut().find(|s| s.0 == label) {
+                            Some(slot) => slot.1 += weight,
+                            None => pixel.push((label, weight)),
+                        }
+                    });
+                let tw = bounds.x1 - bounds.x0;
+                for y in bounds.y0..bounds.y1 {
+                    for x in bounds.x0..bounds.x1 {
+                        let local = (y - bounds.y0) * tw + (x - bounds.x0);
+                        let pixel = (y - ty * tile) * width + x;
+                        let alpha = 1.0 - transmittance[local];
+                        alpha_band[pixel] = alpha;
+                        depth_band[pixel] = if alpha > 0.0 {
+                            depth[local] / alpha
+                        } else {
+                            0.0
+                        };
+                        // Ties go to the label that arrived first (the nearer surface).
+                        labels_band[pixel] = slots[local]
+                            .iter()
+                            .fold(None, |best: Option<(u32, f32)>, s| match best {
+                                Some(b) if b.1 >= s.1 => Some(b),
+                                _ => Some(*s),
+                            })
+                            .map(|(label, _)| label);
                     }
                 }
             }
@@ -372,19 +500,43 @@ fn composite_tile(
     features: &[f32],
     channels: usize,
 ) -> TileOutput {
+    let n = (b.x1 - b.x0) * (b.y1 - b.y0);
+    let mut acc = vec![0.0f32; n * channels];
+    let (transmittance, depth) = composite(b, order, splats, |local, index, weight| {
+        let feature = &features[index * channels..(index + 1) * channels];
+        for (acc_c, f) in acc[local * channels..(local + 1) * channels]
+            .iter_mut()
+            .zip(feature)
+        {
+            *acc_c += f * weight;
+        }
+    });
+    TileOutput {
+        transmittance,
+        depth,
+        features: acc,
+    }
+}
+
+/// The front-to-back loop of 3DGS over one tile: `blend(pixel in tile, Gaussian index, weight)`
+/// receives every contribution; returns per pixel the transmittance and the weighted depth sum.
+fn composite(
+    b: &TileBounds,
+    order: impl Iterator<Item = usize>,
+    splats: &[Splat],
+    mut blend: impl FnMut(usize, usize, f32),
+) -> (Vec<f32>, Vec<f32>) {
     let tw = b.x1 - b.x0;
     let n = tw * (b.y1 - b.y0);
     let mut transmittance = vec![1.0f32; n];
     let mut done = vec![false; n];
     let mut depth = vec![0.0f32; n];
-    let mut acc = vec![0.0f32; n * channels];
     let mut remaining = n;
     for i in order {
         if remaining == 0 {
             break;
         }
         let s = &splats[i];
-        let feature = &features[s.index * channels..(s.index + 1) * channels];
         let (x0, x1) = (s.x0.max(b.x0), s.x1.min(b.x1 - 1));
         let (y0, y1) = (s.y0.max(b.y0), s.y1.min(b.y1 - 1));
         if x0 > x1 || y0 > y1 {
@@ -417,22 +569,13 @@ fn composite_tile(
                     continue;
                 }
                 let weight = alpha * t;
-                for (acc_c, f) in acc[local * channels..(local + 1) * channels]
-                    .iter_mut()
-                    .zip(feature)
-                {
-                    *acc_c += f * weight;
-                }
+                blend(local, s.index, weight);
                 depth[local] += s.depth as f32 * weight;
                 transmittance[local] = next;
             }
         }
     }
-    TileOutput {
-        transmittance,
-        depth,
-        features: acc,
-    }
+    (transmittance, depth)
 }
 
 /// Brute force in f64: every Gaussian at every pixel, sorted by depth, with the same compositing
@@ -652,6 +795,44 @@ mod tests {
             );
             assert_valid(&fast);
         }
+    }
+
+    #[test]
+    fn label_render_picks_the_label_a_one_hot_channel_render_picks() {
+        for (seed, n, labels) in [(11, 60, 3), (12, 200, 9), (13, 400, 30)] {
+            let (g, _) = scene(seed, n, 0);
+            let label_of: Vec<u32> = (0..n).map(|i| (i * 7 % labels) as u32).collect();
+            let one_hot: Vec<f32> = label_of
+                .iter()
+                .flat_map(|&l| (0..labels).map(move |k| if k == l as usize { 1.0 } else { 0.0 }))
+                .collect();
+            let settings = RasterSettings::default();
+            let channels = render(&g, &one_hot, labels, &camera(), &pose(), &settings).unwrap();
+            let fast = render_labels(&g, &label_of, &camera(), &pose(), &settings).unwrap();
+            assert_eq!(fast.alpha, channels.alpha, "seed {seed}");
+            assert_eq!(fast.depth, channels.depth, "seed {seed}");
+            let mut compared = 0;
+            for p in 0..fast.labels.len() {
+                let weights = &channels.features[p * labels..(p + 1) * labels];
+                let best = weights.iter().cloned().fold(0.0f32, f32::max);
+                if best <= 0.0 {
+                    assert_eq!(fast.labels[p], None, "seed {seed} pixel {p}");
+                    continue;
+                }
+                // Where two labels tie to rounding, either is right.
+                let chosen = fast.labels[p].expect("a rendered pixel has a label") as usize;
+                assert!(
+                    weights[chosen] >= best * (1.0 - 1e-5),
+                    "seed {seed} pixel {p}: {weights:?} chose {chosen}"
+                );
+                compared += 1;
+            }
+            assert!(compared > 100, "seed {seed}: {compared} pixels");
+        }
+        let (g, _) = scene(1, 10, 0);
+        assert!(
+            render_labels(&g, &[0; 9], &camera(), &pose(), &RasterSettings::default()).is_err()
+        );
     }
 
     #[test]

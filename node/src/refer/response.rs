@@ -15,12 +15,11 @@ use super::Answer;
 use crate::frame::Keyframe;
 use crate::recon::boxes::OrientedBox;
 use crate::recon::gaussians::Gaussians;
-use crate::recon::raster::{render, RasterSettings};
+use crate::recon::raster::{render_labels, RasterSettings};
 
 /// Depth tolerance of the occlusion cut (metres).
 pub const MASK_DEPTH_TOLERANCE: f32 = 0.1;
-/// A pixel belongs to a mask where the instance renders at least this opaque.
-pub const MASK_ALPHA: f32 = 0.5;
+pub use super::scene::MASK_ALPHA;
 
 /// A box's centre and yaw as a pose.
 pub fn box_pose(b: &OrientedBox) -> Pose {
@@ -123,23 +122,19 @@ pub fn label_image(instances: &[&Gaussians], keyframe: &Keyframe, scene_depth: &
         keyframe.camera.height as usize,
     );
     let mut all = Gaussians::with_dims(0, 0);
-    let count = instances.len();
-    // One channel per instance: a pixel is the instance's whose channel carries most of it (a
-    // single blended owner number would mislabel the edge between two instances).
+    // A pixel is the instance's whose Gaussians carry most of it (a single blended owner number
+    // would mislabel the edge between two instances).
     let mut owner = Vec::new();
     for (k, g) in instances.iter().enumerate() {
         all.extend_geometry(g);
-        for _ in 0..g.len() {
-            owner.extend((0..count).map(|j| if j == k { 1.0f32 } else { 0.0 }));
-        }
+        owner.extend(std::iter::repeat_n(k as u32, g.len()));
     }
-    if count == 0 {
+    if instances.is_empty() {
         return vec![0; w * h];
     }
-    let Ok(r) = render(
+    let Ok(r) = render_labels(
         &all,
         &owner,
-        count,
         &keyframe.camera,
         &keyframe.world_from_camera.inverse(),
         &RasterSettings::default(),
@@ -151,14 +146,12 @@ pub fn label_image(instances: &[&Gaussians], keyframe: &Keyframe, scene_depth: &
             let d = r.depth[p];
             let reference = scene_depth.get(p).copied().unwrap_or(0.0);
             let unoccluded = reference <= 0.0 || d <= reference + MASK_DEPTH_TOLERANCE;
-            if r.alpha[p] <= MASK_ALPHA || !unoccluded {
-                return 0;
+            match r.labels[p] {
+                Some(k) if r.alpha[p] > MASK_ALPHA && unoccluded => {
+                    (k as usize + 1).min(usize::from(u16::MAX)) as u16
+                }
+                _ => 0,
             }
-            r.features[p * count..(p + 1) * count]
-                .iter()
-                .enumerate()
-                .max_by(|a, b| a.1.total_cmp(b.1))
-                .map_or(0, |(k, _)| (k + 1).min(usize::from(u16::MAX)) as u16)
         })
         .collect()
 }

@@ -17,6 +17,8 @@ use crate::recon::gaussians::Gaussians;
 
 /// Keyframes a snapshot keeps (newest first): what visibility and masks are computed in.
 pub const SNAPSHOT_VIEWS: usize = 4;
+/// A pixel belongs to a mask where the instance renders at least this opaque.
+pub const MASK_ALPHA: f32 = 0.5;
 /// Scene-graph edges join instances whose centres are at most this far apart (metres): a room's
 /// neighbours. Referring relations read boxes, not edges; the edges are for the published graph.
 pub const SNAPSHOT_EDGE_DISTANCE_M: f32 = 3.0;
@@ -61,6 +63,9 @@ pub struct ReferScene {
     pub depths: Vec<Vec<f32>>,
     /// The scene graph over the same keyframes (every instance, structure included).
     pub graph: SceneGraph,
+    /// Per keyframe, each pixel's instance (index into `map.instances`; `None`: nothing there):
+    /// the whole map rendered with one label per instance, so the nearest surface wins.
+    pub labels: Vec<Vec<Option<u32>>>,
     /// The map the snapshot was taken of: answers take their Gaussians from here, so an answer
     /// is consistent with the scores that chose it even when the live map moved on.
     pub map: Arc<SceneMap>,
@@ -80,7 +85,20 @@ impl ReferScene {
         vocabulary: Option<&Vocabulary>,
         boxes: &HashMap<String, OrientedBox>,
     ) -> Result<Self, GraphError> {
-        let (graph, depths) = map.graph_with_depths(SNAPSHOT_VIEWS, SNAPSHOT_EDGE_DISTANCE_M)?;
+        let (graph, renders) = map.graph_with_renders(SNAPSHOT_VIEWS, SNAPSHOT_EDGE_DISTANCE_M)?;
+        let (depths, labels): (Vec<Vec<f32>>, Vec<Vec<Option<u32>>>) = renders
+            .into_iter()
+            .map(|r| {
+                // A pixel is an instance's where the map is opaque enough there (as masks are).
+                let labels = r
+                    .labels
+                    .iter()
+                    .zip(&r.alpha)
+                    .map(|(l, a)| l.filter(|_| *a > MASK_ALPHA))
+                    .collect();
+                (r.depth, labels)
+            })
+            .unzip();
         let mut nodes = Vec::new();
         for (instance, node) in map.instances.iter().zip(&graph.nodes) {
             let names = vocabulary
@@ -136,6 +154,7 @@ impl ReferScene {
                 .collect(),
             depths,
             graph,
+            labels,
             map: Arc::new(map),
         })
     }
