@@ -249,9 +249,11 @@ pub fn masks(
         .collect()
 }
 
-/// Marker namespaces: one box and one label per instance, both with the instance's numeric id.
+/// Marker namespaces: one box and one label per instance, both with the instance's numeric id,
+/// and one line list (id 0) of the scene graph's edges.
 pub const BOX_NAMESPACE: &str = "instances";
 pub const LABEL_NAMESPACE: &str = "labels";
+pub const EDGE_NAMESPACE: &str = "edges";
 
 /// A colour per id, the same on every message (a golden-angle hue walk: neighbours differ).
 fn id_color(id: u32, alpha: f32) -> ColorRGBA {
@@ -269,8 +271,14 @@ fn id_color(id: u32, alpha: f32) -> ColorRGBA {
 }
 
 /// RViz / Foxglove markers: a translucent box and a text label ("inst_000003 chair 0.79") per
-/// instance, and a DELETE for both of every id in `gone` (listed before, not now).
-pub fn markers(header: &Header, instances: &[Instance], gone: &[String]) -> MarkerArray {
+/// instance, a DELETE for both of every id in `gone` (listed before, not now), and the scene
+/// graph's edges as one line list between node centres (deleted when there are none).
+pub fn markers(
+    header: &Header,
+    instances: &[Instance],
+    gone: &[String],
+    graph: &SceneGraph,
+) -> MarkerArray {
     let mut markers = Vec::with_capacity(2 * instances.len() + 2 * gone.len());
     for i in instances {
         let id = numeric_id(&i.id) as i32;
@@ -315,6 +323,45 @@ pub fn markers(header: &Header, instances: &[Instance], gone: &[String]) -> Mark
             ..Default::default()
         });
     }
+    let centre: HashMap<&str, Point> = graph
+        .nodes
+        .iter()
+        .map(|n| (n.id.as_str(), n.center))
+        .collect();
+    let points: Vec<Point> = graph
+        .edges
+        .iter()
+        .filter_map(|e| {
+            Some([
+                *centre.get(e.source.as_str())?,
+                *centre.get(e.target.as_str())?,
+            ])
+        })
+        .flatten()
+        .collect();
+    markers.push(Marker {
+        header: header.clone(),
+        ns: EDGE_NAMESPACE.into(),
+        id: 0,
+        marker_type: Marker::LINE_LIST,
+        action: if points.is_empty() {
+            Marker::DELETE
+        } else {
+            Marker::ADD
+        },
+        scale: Vector3 {
+            x: 0.01,
+            ..Default::default()
+        },
+        color: ColorRGBA {
+            r: 0.7,
+            g: 0.7,
+            b: 0.7,
+            a: 0.6,
+        },
+        points,
+        ..Default::default()
+    });
     for id in gone {
         for ns in [BOX_NAMESPACE, LABEL_NAMESPACE] {
             markers.push(Marker {
@@ -579,6 +626,14 @@ mod tests {
         assert!(graph.nodes.iter().all(|n| n.views.len() == 2));
         let json = scene_graph_json(&graph);
         assert_eq!(json["edges"][0]["target"], "inst_000003");
+        // The edge is drawn as one line between the two centres.
+        let lines = markers(&header, &listed, &[], &graph);
+        let edges = lines.markers.last().unwrap();
+        assert_eq!(
+            (edges.ns.as_str(), edges.action),
+            (EDGE_NAMESPACE, Marker::ADD)
+        );
+        assert_eq!(edges.points, [a, b]);
         assert_eq!(json["nodes"].as_array().unwrap().len(), 2);
     }
 
@@ -598,7 +653,12 @@ mod tests {
             z: 0.0,
         };
         let header = Header::default();
-        let m = markers(&header, &[instance], &["inst_000009".into()]);
+        let m = markers(
+            &header,
+            &[instance],
+            &["inst_000009".into()],
+            &SceneGraph::default(),
+        );
         let summary: Vec<(&str, i32, i32, i32)> = m
             .markers
             .iter()
@@ -609,6 +669,7 @@ mod tests {
             [
                 (BOX_NAMESPACE, 4, Marker::CUBE, Marker::ADD),
                 (LABEL_NAMESPACE, 4, Marker::TEXT_VIEW_FACING, Marker::ADD),
+                (EDGE_NAMESPACE, 0, Marker::LINE_LIST, Marker::DELETE),
                 (BOX_NAMESPACE, 9, 0, Marker::DELETE),
                 (LABEL_NAMESPACE, 9, 0, Marker::DELETE),
             ]

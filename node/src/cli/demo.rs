@@ -263,13 +263,21 @@ fn print_published(p: &groupforward::demo::PublishedOutputs, recorded: Option<u6
         );
     }
     if let Some(m) = &p.markers {
-        let adds = m.markers.iter().filter(|m| m.action == 0).count();
+        use groupforward::outputs::{BOX_NAMESPACE, EDGE_NAMESPACE, LABEL_NAMESPACE};
+        let added = |ns: &str| {
+            m.markers
+                .iter()
+                .filter(|m| m.ns == ns && m.action == 0)
+                .map(|m| m.points.len().max(1) / if ns == EDGE_NAMESPACE { 2 } else { 1 })
+                .sum::<usize>()
+        };
         println!(
-            "    {} visualization_msgs/MarkerArray: {} boxes, {} labels, {} deletions",
+            "    {} visualization_msgs/MarkerArray: {} boxes, {} labels, {} edge lines, {} deletions",
             traffic("markers"),
-            adds / 2,
-            adds / 2,
-            m.markers.len() - adds
+            added(BOX_NAMESPACE),
+            added(LABEL_NAMESPACE),
+            added(EDGE_NAMESPACE),
+            m.markers.iter().filter(|m| m.action == 2).count()
         );
     }
     if let Some(g) = &p.scene_graph {

@@ -272,7 +272,8 @@ pub fn encode(
             .map(cdr::encode)
             .collect::<std::result::Result<_, _>>()
             .map_err(bytes)?,
-        markers: cdr::encode(&outputs::markers(&header, &instances, &gone)).map_err(bytes)?,
+        markers: cdr::encode(&outputs::markers(&header, &instances, &gone, &graph))
+            .map_err(bytes)?,
         scene_graph: cdr::encode(&graph).map_err(bytes)?,
     };
     *listed_before = listed;
