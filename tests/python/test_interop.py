@@ -145,7 +145,8 @@ def test_map_outputs_reach_a_python_subscriber_with_rosbags_types_and_hashes(nod
     assert [f.name for f in cloud.fields] == ['x', 'y', 'z', 'rgb', 'instance_id']
     assert cloud.width == 0 and cloud.point_step == 20
     assert decoded['scene_graph'].nodes == [] and decoded['scene_graph'].edges == []
-    assert decoded['markers'].markers == []
+    # No boxes or labels; the (empty) graph's edge lines are deleted.
+    assert [(m.ns, m.action) for m in decoded['markers'].markers] == [('edges', 2)]
     # Liveliness: each output is announced as a publisher with the same type hash.
     tokens = [str(reply.ok.key_expr) for reply in node.session.liveliness().get('@ros2_lv/0/**', timeout=3)
               if reply.ok is not None and '/MP/' in str(reply.ok.key_expr)]
