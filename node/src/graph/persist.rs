@@ -33,6 +33,9 @@ pub struct MapSection {
     pub file: Option<String>,
     /// Load `file` at start when it exists (a corrupt or newer file is logged; the map starts empty).
     pub restore_on_start: bool,
+    /// Save the map to `file` when the node stops (Ctrl-C, SIGTERM, end of a run), so a restart
+    /// finds what the robot mapped; a failed save is logged and the previous file stays.
+    pub save_on_exit: bool,
 }
 
 impl Default for MapSection {
@@ -40,6 +43,7 @@ impl Default for MapSection {
         Self {
             file: None,
             restore_on_start: true,
+            save_on_exit: true,
         }
     }
 }

@@ -144,7 +144,21 @@ pub fn run(
             tracing::error!("the window worker panicked");
         }
     }
-    // The map is final: the output publisher publishes it once more, then stops.
+    // The map is final: keep it for the next start, then the output publisher publishes it once
+    // more and stops.
+    if let Some(file) = config
+        .map
+        .file
+        .as_deref()
+        .filter(|_| config.map.save_on_exit)
+    {
+        let map = shared.lock().ok().map(|s| s.map.clone());
+        match map.map(|map| persist::save(&map, std::path::Path::new(file))) {
+            Some(Ok(())) => tracing::info!("map saved to {file}"),
+            Some(Err(e)) => tracing::error!("cannot save the map to {file}: {e}"),
+            None => tracing::error!("cannot save the map: its lock is poisoned"),
+        }
+    }
     drop(stop_outputs);
     if let Some(publisher) = output_publisher {
         if publisher.join().is_err() {
@@ -290,6 +304,24 @@ mod tests {
         map
     }
 
+    /// `one_instance_map` and a second instance 3 m along x.
+    fn two_instance_map() -> SceneMap {
+        let mut two = one_instance_map();
+        let mut far = two.instances[0].gaussians.clone();
+        far.means.iter_mut().for_each(|m| m.x += 3.0);
+        two.fuse(
+            vec![crate::frame::WindowInstance {
+                gaussians: far,
+                prototype: vec![1.0, 0.0],
+                support: 25,
+            }],
+            &[],
+            9,
+        )
+        .unwrap();
+        two
+    }
+
     #[test]
     fn map_services_save_load_and_restore_on_start_keeping_the_map_on_errors() {
         let dir = tempfile::tempdir().unwrap();
@@ -366,6 +398,52 @@ mod tests {
         runner.join().unwrap().unwrap();
     }
 
+    #[test]
+    fn the_map_is_saved_when_the_node_stops_and_restored_at_the_next_start() {
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("robot.gfmap");
+        persist::save(&one_instance_map(), &file).unwrap();
+        let two = two_instance_map();
+        let two_file = dir.path().join("two.gfmap");
+        persist::save(&two, &two_file).unwrap();
+        let load = |bus: &MemoryTransport, path: &std::path::Path| {
+            let request = cdr::encode(&MapPathRequest {
+                path: path.display().to_string(),
+            })
+            .unwrap();
+            let reply: MapResultResponse =
+                cdr::decode(&bus.call("/groupforward/load_map", &request).unwrap()).unwrap();
+            assert!(reply.success, "{reply:?}");
+        };
+        let mut config = Config::default();
+        config.map.file = Some(file.display().to_string());
+        // The robot's map changes while it runs (here: a map loaded into it), then it stops.
+        let (bus, shutdown, runner) = start(&config);
+        load(&bus, &two_file);
+        shutdown.store(true, Ordering::Relaxed);
+        runner.join().unwrap().unwrap();
+        let saved = persist::load(&file, Default::default()).unwrap();
+        assert_eq!(saved.instances.len(), 2, "the map at stop is on disk");
+        // The next start restores it; with save_on_exit off, stopping leaves the file as it was.
+        config.map.save_on_exit = false;
+        let (bus, shutdown, runner) = start(&config);
+        let reply = bus
+            .call(
+                "/groupforward/list_instances",
+                &cdr::encode(&ListInstancesRequest::default()).unwrap(),
+            )
+            .unwrap();
+        let listed: ListInstancesResponse = cdr::decode(&reply).unwrap();
+        assert_eq!(listed.instances.len(), 2);
+        let one_file = dir.path().join("one.gfmap");
+        persist::save(&one_instance_map(), &one_file).unwrap();
+        load(&bus, &one_file);
+        shutdown.store(true, Ordering::Relaxed);
+        runner.join().unwrap().unwrap();
+        let kept = persist::load(&file, Default::default()).unwrap();
+        assert_eq!(kept.instances.len(), 2);
+    }
+
     /// Wait until the last message on `topic` satisfies `done`.
     fn last_published<T: serde::de::DeserializeOwned>(
         bus: &MemoryTransport,
@@ -394,19 +472,7 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let one = dir.path().join("one.gfmap");
         persist::save(&one_instance_map(), &one).unwrap();
-        let mut two = one_instance_map();
-        let mut far = two.instances[0].gaussians.clone();
-        far.means.iter_mut().for_each(|m| m.x += 3.0);
-        two.fuse(
-            vec![crate::frame::WindowInstance {
-                gaussians: far,
-                prototype: vec![1.0, 0.0],
-                support: 25,
-            }],
-            &[],
-            9,
-        )
-        .unwrap();
+        let two = two_instance_map();
         let two_file = dir.path().join("two.gfmap");
         persist::save(&two, &two_file).unwrap();
         let mut config = Config::default();
