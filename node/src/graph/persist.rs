@@ -36,6 +36,10 @@ pub struct MapSection {
     /// Save the map to `file` when the node stops (Ctrl-C, SIGTERM, end of a run), so a restart
     /// finds what the robot mapped; a failed save is logged and the previous file stays.
     pub save_on_exit: bool,
+    /// `save_map` / `load_map` request paths are confined to this directory: a relative path
+    /// resolves inside it, and `..` or an absolute path elsewhere is refused. `null`: any path
+    /// the node can read and write (trusted networks only). `file` itself is not confined.
+    pub directory: Option<String>,
 }
 
 impl Default for MapSection {
@@ -44,6 +48,7 @@ impl Default for MapSection {
             file: None,
             restore_on_start: true,
             save_on_exit: true,
+            directory: None,
         }
     }
 }

@@ -39,6 +39,8 @@ pub struct Shared {
     pub instances: Vec<Instance>,
     /// Default snapshot file (`map.file`).
     pub map_file: Option<String>,
+    /// Where request paths are confined (`map.directory`; `None`: anywhere).
+    pub map_directory: Option<std::path::PathBuf>,
     /// Names for instances (set once the text encoder has embedded `semantics.vocabulary`).
     pub vocabulary: Option<Vocabulary>,
     /// Hypotheses per instance message.
@@ -204,14 +206,34 @@ pub fn current_snapshot_and_generation(
     Ok((scene, generation))
 }
 
-fn map_path<'a>(shared: &'a Shared, requested: &'a str) -> std::result::Result<&'a str, String> {
-    if !requested.is_empty() {
-        return Ok(requested);
+/// The file a `save_map` / `load_map` request names: `map.file` when it names none; inside
+/// `map.directory` when one is configured (a path that would leave it is refused).
+fn map_path(shared: &Shared, requested: &str) -> std::result::Result<String, String> {
+    if requested.is_empty() {
+        return shared
+            .map_file
+            .clone()
+            .ok_or_else(|| "no path given and no map.file configured".to_owned());
     }
-    shared
-        .map_file
-        .as_deref()
-        .ok_or_else(|| "no path given and no map.file configured".to_owned())
+    let Some(directory) = &shared.map_directory else {
+        return Ok(requested.to_owned());
+    };
+    let path = std::path::Path::new(requested);
+    let escapes = path
+        .components()
+        .any(|c| matches!(c, std::path::Component::ParentDir));
+    let inside = if path.is_absolute() {
+        path.starts_with(directory).then(|| path.to_path_buf())
+    } else {
+        Some(directory.join(path))
+    };
+    match inside {
+        Some(p) if !escapes => Ok(p.display().to_string()),
+        _ => Err(format!(
+            "`{requested}` is outside the map directory {} (map.directory)",
+            directory.display()
+        )),
+    }
 }
 
 fn handle_save(shared: &Mutex<Shared>, request: &[u8]) -> std::result::Result<Vec<u8>, String> {
@@ -219,7 +241,7 @@ fn handle_save(shared: &Mutex<Shared>, request: &[u8]) -> std::result::Result<Ve
     // Serialise under the lock, write outside it: a slow disk never stalls the node loop.
     let (path, bytes) = {
         let s = shared.lock().map_err(|e| e.to_string())?;
-        let path = map_path(&s, &request.path).map(str::to_owned);
+        let path = map_path(&s, &request.path);
         (path, persist::to_bytes(&s.map))
     };
     let outcome = path.and_then(|path| {
@@ -255,7 +277,7 @@ fn handle_load(shared: &Mutex<Shared>, request: &[u8]) -> std::result::Result<Ve
     let request: MapPathRequest = cdr::decode(request).map_err(|e| e.to_string())?;
     let (path, params) = {
         let s = shared.lock().map_err(|e| e.to_string())?;
-        (map_path(&s, &request.path).map(str::to_owned), s.map.params)
+        (map_path(&s, &request.path), s.map.params)
     };
     let loaded = path.and_then(|path| {
         persist::load(std::path::Path::new(&path), params)
@@ -641,6 +663,40 @@ mod tests {
             ],
             ..Default::default()
         }
+    }
+
+    #[test]
+    fn map_paths_stay_inside_the_configured_directory() {
+        let mut s = Shared {
+            map_file: Some("/var/robot/map.gfmap".into()),
+            ..Shared::default()
+        };
+        // No directory: any path, as before; an empty request names map.file.
+        assert_eq!(map_path(&s, "../x.gfmap").unwrap(), "../x.gfmap");
+        assert_eq!(map_path(&s, "").unwrap(), "/var/robot/map.gfmap");
+        s.map_directory = Some("/data/maps".into());
+        assert_eq!(
+            map_path(&s, "kitchen.gfmap").unwrap(),
+            "/data/maps/kitchen.gfmap"
+        );
+        assert_eq!(
+            map_path(&s, "/data/maps/a/b.gfmap").unwrap(),
+            "/data/maps/a/b.gfmap"
+        );
+        for outside in [
+            "../etc/passwd",
+            "a/../../x.gfmap",
+            "/etc/x.gfmap",
+            "/data/mapsx/y.gfmap",
+            "/data/maps/../z.gfmap",
+        ] {
+            let refused = map_path(&s, outside).unwrap_err();
+            assert!(
+                refused.contains("outside the map directory"),
+                "{outside}: {refused}"
+            );
+        }
+        assert_eq!(map_path(&s, "").unwrap(), "/var/robot/map.gfmap");
     }
 
     #[test]
