@@ -12,6 +12,7 @@
 //!   when the instance leaves the list;
 //! - `~/scene_graph`: `groupforward_msgs/SceneGraph`, and the same as JSON on the JSON API.
 
+use std::borrow::Cow;
 use std::collections::HashMap;
 
 use groupforward_msgs::builtin_interfaces::{Duration, Time};
@@ -167,25 +168,21 @@ pub fn cloud(
     instances: &[Instance],
     max_points: usize,
 ) -> PointCloud2 {
-    let listed: Vec<(u32, &Gaussians)> = listed_gaussians(scene, instances)
-        .into_iter()
-        .map(|(i, g)| (numeric_id(&i.id), g))
-        .collect();
+    let listed = listed_gaussians(scene, instances);
     let total: usize = listed.iter().map(|(_, g)| g.len()).sum();
     let stride = total.div_ceil(max_points.max(1)).max(1);
-    let thinned: Vec<(u32, Gaussians)> = if stride == 1 {
-        Vec::new()
-    } else {
-        listed
-            .iter()
-            .map(|(id, g)| (*id, g.select((0..g.len()).step_by(stride))))
-            .collect()
-    };
-    let items: Vec<(u32, &Gaussians)> = if stride == 1 {
-        listed
-    } else {
-        thinned.iter().map(|(id, g)| (*id, g)).collect()
-    };
+    // Within the budget the Gaussians are borrowed as they are; over it, every stride-th.
+    let thinned: Vec<(u32, Cow<Gaussians>)> = listed
+        .into_iter()
+        .map(|(i, g)| {
+            let g = match stride {
+                1 => Cow::Borrowed(g),
+                _ => Cow::Owned(g.select((0..g.len()).step_by(stride))),
+            };
+            (numeric_id(&i.id), g)
+        })
+        .collect();
+    let items: Vec<(u32, &Gaussians)> = thinned.iter().map(|(id, g)| (*id, g.as_ref())).collect();
     let mut message = instance_cloud(&header.frame_id, header.stamp, &items);
     message.header = header.clone();
     message

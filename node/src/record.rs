@@ -54,7 +54,7 @@ impl Recorder {
         let Ok(mut bag) = self.bag.lock() else { return };
         let Some(bag) = bag.as_mut() else { return };
         if let Err(e) = bag.write_encoded(&endpoint.name, &endpoint.type_name, now, payload) {
-            // Logged once per failure kind would be nicer; counting keeps the log readable.
+            // The first failure is logged; the rest are counted and reported when the bag closes.
             if self
                 .failures
                 .fetch_add(1, std::sync::atomic::Ordering::Relaxed)
@@ -86,6 +86,10 @@ impl Recorder {
         let bag = self.bag.lock().ok().and_then(|mut b| b.take());
         let Some(bag) = bag else { return Ok(0) };
         let count = bag.message_count();
+        let failures = self.failures.load(std::sync::atomic::Ordering::Relaxed);
+        if failures > 0 {
+            tracing::warn!("{failures} messages could not be recorded");
+        }
         bag.finish_dir(&self.dir, &self.file_name)
             .map_err(|e| RecordError::Bag(self.dir.clone(), e))?;
         Ok(count)

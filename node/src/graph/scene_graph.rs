@@ -14,19 +14,8 @@ use crate::recon::raster::{render_labels, LabelRender, RasterSettings};
 impl SceneMap {
     /// The scene graph over the `views` newest keyframes.
     pub fn graph(&self, views: usize, max_edge_distance: f32) -> Result<SceneGraph, GraphError> {
-        self.graph_with_depths(views, max_edge_distance)
-            .map(|(graph, _)| graph)
-    }
-
-    /// The scene graph and, per keyframe of the graph (newest first), the depth of the whole map
-    /// rendered there: the occlusion reference that masks are cut against.
-    pub fn graph_with_depths(
-        &self,
-        views: usize,
-        max_edge_distance: f32,
-    ) -> Result<(SceneGraph, Vec<Vec<f32>>), GraphError> {
         self.graph_with_renders(views, max_edge_distance)
-            .map(|(graph, renders)| (graph, renders.into_iter().map(|r| r.depth).collect()))
+            .map(|(graph, _)| graph)
     }
 
     /// The scene graph and, per keyframe of the graph (newest first), the whole map rendered
