@@ -219,9 +219,10 @@ mod semantics {
     #[test]
     fn prototypes_are_masked_means_over_views_and_empty_instances_stay_zero() {
         let labels_a = [0, 0, 1, -1];
-        let features_a = [1.0, 0.0, 3.0, 0.0, 0.0, 2.0, 9.0, 9.0];
+        // Channel after channel: pixels (1, 0), (3, 0), (0, 2), (9, 9).
+        let features_a = [1.0, 3.0, 0.0, 9.0, 0.0, 0.0, 2.0, 9.0];
         let labels_b = [1, 0];
-        let features_b = [0.0, 4.0, 5.0, 0.0];
+        let features_b = [0.0, 5.0, 4.0, 0.0];
         let views = [
             LabelledView {
                 labels: &labels_a,

@@ -85,9 +85,7 @@ fn the_semantic_model_names_pixels_of_unseen_val_rooms() {
                 for fx in 0..features.width {
                     let x = ((fx as f64 + 0.5) * w as f64 / features.width as f64) as usize;
                     let pixel = fy * features.width + fx;
-                    let feature =
-                        &features.data[pixel * features.channels..(pixel + 1) * features.channels];
-                    let named = vocabulary.hypotheses(feature, 1);
+                    let named = vocabulary.hypotheses(&features.at(pixel), 1);
                     let truth = phrase_of(view.truth.class[y * w + x]);
                     let hit = named[0].0 == truth;
                     hits += usize::from(hit);

@@ -2,10 +2,11 @@
 //! similarity, Kuhn–Munkres, then parts), merge or give birth, fold duplicates, and let instances that should
 //! have been seen lose confidence and die.
 
-use std::collections::{HashMap, VecDeque};
+use std::collections::VecDeque;
 
 use glam::Vec3;
 use pathfinding::prelude::{kuhn_munkres, Matrix};
+use rustc_hash::FxHashMap;
 
 use super::error::GraphError;
 use super::instance::{bounds, capped, cosine, FusionParams, Instance};
@@ -117,12 +118,12 @@ impl Footprint {
 /// Points hashed into cells of one radius, for "nearest point within the radius" queries.
 struct PointGrid<'a> {
     radius: f32,
-    cells: HashMap<(i32, i32, i32), Vec<&'a Vec3>>,
+    cells: FxHashMap<(i32, i32, i32), Vec<&'a Vec3>>,
 }
 
 impl<'a> PointGrid<'a> {
     fn new(points: &'a [Vec3], radius: f32) -> Self {
-        let mut cells: HashMap<(i32, i32, i32), Vec<&Vec3>> = HashMap::new();
+        let mut cells: FxHashMap<(i32, i32, i32), Vec<&Vec3>> = FxHashMap::default();
         for p in points {
             cells.entry(Self::cell(*p, radius)).or_default().push(p);
         }

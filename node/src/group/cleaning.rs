@@ -5,7 +5,9 @@
 //! ones dropped as noise. Embeddings alike across the room (two identical chairs, a chair and a
 //! patch of floor the model was unsure of) then no longer make one instance with a room-sized box.
 
-use std::collections::{HashMap, VecDeque};
+use std::collections::VecDeque;
+
+use rustc_hash::FxHashMap;
 
 use glam::Vec3;
 
@@ -104,12 +106,12 @@ pub fn split_components(
             let v = (p / cell).floor();
             (v.x as i32, v.y as i32, v.z as i32)
         };
-        let mut voxels: HashMap<(i32, i32, i32), Vec<usize>> = HashMap::new();
+        let mut voxels: FxHashMap<(i32, i32, i32), Vec<usize>> = FxHashMap::default();
         for &i in &points_of_cluster {
             voxels.entry(key(points[i])).or_default().push(i);
         }
         // Breadth-first over occupied voxels; each component's points.
-        let mut component_of: HashMap<(i32, i32, i32), usize> = HashMap::new();
+        let mut component_of: FxHashMap<(i32, i32, i32), usize> = FxHashMap::default();
         let mut components: Vec<Vec<usize>> = Vec::new();
         let mut keys: Vec<(i32, i32, i32)> = voxels.keys().copied().collect();
         keys.sort_unstable();

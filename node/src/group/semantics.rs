@@ -65,7 +65,8 @@ pub enum SemanticsError {
     Render(String),
 }
 
-/// One context view: per-pixel instance labels (-1 = none) and `channels` features per pixel.
+/// One context view: per-pixel instance labels (-1 = none) and `channels` features per pixel,
+/// channel after channel (`features[c * pixels + pixel]`, the models' layout).
 #[derive(Debug, Clone, Copy)]
 pub struct LabelledView<'a> {
     pub labels: &'a [i32],
@@ -94,14 +95,27 @@ pub fn prototypes(
         if view.features.iter().any(|f| !f.is_finite()) {
             return Err(SemanticsError::NonFinite(v));
         }
+        // One 0/1 mask per instance the view labels: a channel's masked sum is then a dot
+        // product over a contiguous plane, which vectorises (a gather per pixel did not).
+        let pixels = view.labels.len();
+        let mut masks: Vec<(usize, Vec<f32>)> = Vec::new();
         for (pixel, &label) in view.labels.iter().enumerate() {
             let Some(k) = usize::try_from(label).ok().filter(|&k| k < instances) else {
                 continue;
             };
             counts[k] += 1;
-            let feature = &view.features[pixel * channels..(pixel + 1) * channels];
-            for (s, f) in sums[k].iter_mut().zip(feature) {
-                *s += f64::from(*f);
+            let at = match masks.iter().position(|(own, _)| *own == k) {
+                Some(at) => at,
+                None => {
+                    masks.push((k, vec![0.0; pixels]));
+                    masks.len() - 1
+                }
+            };
+            masks[at].1[pixel] = 1.0;
+        }
+        for (c, plane) in view.features.chunks_exact(pixels.max(1)).enumerate() {
+            for (k, mask) in &masks {
+                sums[*k][c] += dot(plane, mask);
             }
         }
     }
@@ -121,6 +135,24 @@ pub fn prototypes(
         })
         .collect();
     Ok((prototypes, counts))
+}
+
+/// `a · b` in eight independent lanes (so the compiler vectorises it), summed in f64.
+fn dot(a: &[f32], b: &[f32]) -> f64 {
+    let mut lanes = [0.0f32; 8];
+    let (a8, b8) = (a.chunks_exact(8), b.chunks_exact(8));
+    let tail: f64 = a8
+        .remainder()
+        .iter()
+        .zip(b8.remainder())
+        .map(|(x, y)| f64::from(x * y))
+        .sum();
+    for (x, y) in a8.zip(b8) {
+        for lane in 0..8 {
+            lanes[lane] += x[lane] * y[lane];
+        }
+    }
+    lanes.iter().map(|&l| f64::from(l)).sum::<f64>() + tail
 }
 
 /// Instances and semantics carried into a view.

@@ -12,13 +12,25 @@ use super::reconstruction::model_image;
 use super::{open_session, ModelError, Result, SessionOptions};
 use crate::frame::RgbImage;
 
-/// Dense features of one image, pixel-major: `data[(y * width + x) * channels + c]`.
+/// Dense features of one image, channel after channel as the model gives them (pooling reads
+/// them so, and a transpose cost a third of the semantic stage):
+/// `data[c * width * height + y * width + x]`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct DenseFeatures {
     pub width: usize,
     pub height: usize,
     pub channels: usize,
     pub data: Vec<f32>,
+}
+
+impl DenseFeatures {
+    /// The feature vector of pixel `y * width + x`.
+    pub fn at(&self, pixel: usize) -> Vec<f32> {
+        let plane = self.width * self.height;
+        (0..self.channels)
+            .map(|c| self.data[c * plane + pixel])
+            .collect()
+    }
 }
 
 /// A loaded semantic model.
@@ -98,19 +110,11 @@ impl SemanticModel {
                 "output `features` has a non-finite value at {i}"
             )));
         }
-        let feature_plane = h * w;
-        // Channel-planar to pixel-major, the layout prototypes are pooled from.
-        let mut pixel_major = vec![0.0f32; channels * feature_plane];
-        for (c, channel) in data.chunks_exact(feature_plane).enumerate() {
-            for (pixel, &value) in channel.iter().enumerate() {
-                pixel_major[pixel * channels + c] = value;
-            }
-        }
         Ok(DenseFeatures {
             width: w,
             height: h,
             channels,
-            data: pixel_major,
+            data: data.to_vec(),
         })
     }
 }

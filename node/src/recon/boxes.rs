@@ -93,30 +93,31 @@ impl OrientedBox {
             return Self::from_bounds(DVec3::ZERO, DVec3::ZERO);
         }
         let principal = principal_yaw(&points);
+        // The vertical extent does not depend on the yaw.
+        let mut z: Vec<f64> = points.iter().map(|p| p.z).collect();
+        let vertical = trimmed_range(&mut z, trim);
         // Near-square footprints have no stable principal axis: try the neighbourhood and keep
         // the tightest rectangle.
         let mut best: Option<(f64, Self)> = None;
         for step in -6..=6 {
             let yaw = principal + f64::from(step) * std::f64::consts::PI / 48.0;
-            let candidate = Self::fit_at_yaw(&points, yaw, trim);
+            let candidate = Self::fit_at_yaw(&points, yaw, trim, vertical);
             let area = candidate.footprint_area();
             if best.as_ref().is_none_or(|(a, _)| area < *a - 1e-12) {
                 best = Some((area, candidate));
             }
         }
-        let (_, fitted) = best.unwrap_or((0.0, Self::fit_at_yaw(&points, 0.0, trim)));
+        let (_, fitted) = best.unwrap_or((0.0, Self::fit_at_yaw(&points, 0.0, trim, vertical)));
         fitted.canonical()
     }
 
-    /// Trimmed extents along the axes of `yaw`.
-    fn fit_at_yaw(points: &[DVec3], yaw: f64, trim: f64) -> Self {
+    /// Trimmed extents along the axes of `yaw`; `(z0, z1)` the trimmed vertical range.
+    fn fit_at_yaw(points: &[DVec3], yaw: f64, trim: f64, (z0, z1): (f64, f64)) -> Self {
         let (c, s) = (yaw.cos(), yaw.sin());
         let mut u: Vec<f64> = points.iter().map(|p| c * p.x + s * p.y).collect();
         let mut v: Vec<f64> = points.iter().map(|p| -s * p.x + c * p.y).collect();
-        let mut z: Vec<f64> = points.iter().map(|p| p.z).collect();
         let (u0, u1) = trimmed_range(&mut u, trim);
         let (v0, v1) = trimmed_range(&mut v, trim);
-        let (z0, z1) = trimmed_range(&mut z, trim);
         let (mu, mv) = ((u0 + u1) / 2.0, (v0 + v1) / 2.0);
         Self {
             centre: DVec3::new(c * mu - s * mv, s * mu + c * mv, (z0 + z1) / 2.0),
@@ -164,13 +165,20 @@ fn principal_yaw(points: &[DVec3]) -> f64 {
     }
 }
 
-/// (low, high) percentiles of `values` leaving `trim` of them out at each end.
+/// (low, high) percentiles of `values` leaving `trim` of them out at each end: the values a
+/// sort would put at those ranks, found by selection (linear time; boxes are refitted often).
 fn trimmed_range(values: &mut [f64], trim: f64) -> (f64, f64) {
-    values.sort_by(f64::total_cmp);
     let n = values.len();
     let cut = ((n as f64) * trim.clamp(0.0, 0.49)).floor() as usize;
     let (lo, hi) = (cut.min(n - 1), (n - 1 - cut).max(cut.min(n - 1)));
-    (values[lo], values[hi])
+    let (_, &mut low, above) = values.select_nth_unstable_by(lo, f64::total_cmp);
+    let high = if hi == lo {
+        low
+    } else {
+        // Rank `hi` of the whole slice is rank `hi - lo - 1` of the part above `lo`.
+        *above.select_nth_unstable_by(hi - lo - 1, f64::total_cmp).1
+    };
+    (low, high)
 }
 
 /// Sutherland–Hodgman: the part of convex polygon `subject` inside convex polygon `clip_by`
@@ -349,5 +357,28 @@ mod tests {
         };
         assert!(turned.contains(DVec3::new(0.0, 0.9, 0.0)));
         assert!(!turned.contains(DVec3::new(0.9, 0.0, 0.0)));
+    }
+
+    #[test]
+    fn trimmed_ranges_by_selection_are_the_sorted_ranks() {
+        let mut state = 12345u64;
+        let mut next = || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            ((state >> 33) % 50) as f64 / 7.0 // many ties
+        };
+        for n in [1usize, 2, 3, 10, 101, 1000] {
+            for trim in [0.0f64, 0.02, 0.25, 0.49, 0.7] {
+                let values: Vec<f64> = (0..n).map(|_| next()).collect();
+                let mut sorted = values.clone();
+                sorted.sort_by(f64::total_cmp);
+                let cut = ((n as f64) * trim.clamp(0.0, 0.49)).floor() as usize;
+                let lo = cut.min(n - 1);
+                let hi = (n - 1 - cut).max(lo);
+                let got = trimmed_range(&mut values.clone(), trim);
+                assert_eq!(got, (sorted[lo], sorted[hi]), "n {n}, trim {trim}");
+            }
+        }
     }
 }

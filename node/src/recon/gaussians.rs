@@ -2,7 +2,7 @@
 //! embedding and optional extra channels per Gaussian. Pixel-aligned predictions (one Gaussian per
 //! pixel of each view) lift to world space; voxel downsampling bounds their number.
 
-use std::collections::HashMap;
+use rustc_hash::FxHashMap;
 
 use glam::{DVec2, Quat, Vec3};
 
@@ -264,7 +264,7 @@ pub fn voxel_downsample(g: &Gaussians, voxel: f32) -> Result<Gaussians> {
         return Err(GaussianError::BadVoxel(voxel));
     }
     g.validate()?;
-    let mut slots: HashMap<(i64, i64, i64), usize> = HashMap::new();
+    let mut slots: FxHashMap<(i64, i64, i64), usize> = FxHashMap::default();
     let mut members: Vec<Vec<usize>> = Vec::new();
     for (i, mean) in g.means.iter().enumerate() {
         let key = (
