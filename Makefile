@@ -6,7 +6,7 @@ PYTHON ?= python3
 VENV := .venv
 STAMP := $(VENV)/.installed-$(shell sha256sum tests/python/requirements.txt | cut -c1-16)
 
-.PHONY: all setup build demo test test-rust test-python lint bench golden clean train-setup train-data train-test
+.PHONY: all setup build demo test test-rust test-python lint bench sweep golden clean train-setup train-data train-test
 
 all: test
 
@@ -48,6 +48,10 @@ bench: setup
 	$(CARGO) run --release -p groupforward -- bench grouping --python $(VENV)/bin/python --out node/doc/bench/grouping
 	$(CARGO) run --release -p groupforward -- bench graph --out node/doc/bench/graph
 	$(CARGO) run --release -p groupforward -- bench refer --out node/doc/bench/refer
+
+# What accuracy costs in time: the settings sweep the README's Pareto chart comes from (~10 min).
+sweep: setup
+	$(CARGO) run --release -p groupforward -- bench sweep --out node/doc/bench/sweep
 
 # Training (never part of CI): PyTorch and friends into train/.venv, and sim datasets for it.
 train-setup:

@@ -460,6 +460,7 @@ embedded! {
     msg "groupforward_msgs" "Candidate" => "groupforward_msgs/msg/Candidate.msg";
     msg "groupforward_msgs" "CameraStatus" => "groupforward_msgs/msg/CameraStatus.msg";
     msg "groupforward_msgs" "RejectCount" => "groupforward_msgs/msg/RejectCount.msg";
+    msg "groupforward_msgs" "StageTiming" => "groupforward_msgs/msg/StageTiming.msg";
     msg "groupforward_msgs" "NodeStatus" => "groupforward_msgs/msg/NodeStatus.msg";
     srv "groupforward_msgs" "Refer" => "groupforward_msgs/srv/Refer.srv";
     srv "groupforward_msgs" "ListInstances" => "groupforward_msgs/srv/ListInstances.srv";

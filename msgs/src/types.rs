@@ -460,6 +460,15 @@ pub mod gf_msgs {
     }
 
     #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+    pub struct StageTiming {
+        pub stage: String,
+        pub count: u64,
+        pub last_ms: f64,
+        pub p50_ms: f64,
+        pub p99_ms: f64,
+    }
+
+    #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
     pub struct NodeStatus {
         pub header: Header,
         pub uptime_secs: f64,
@@ -467,6 +476,7 @@ pub mod gf_msgs {
         pub tf_received: u64,
         pub tf_rejected: u64,
         pub rejections: Vec<RejectCount>,
+        pub stages: Vec<StageTiming>,
     }
 
     #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
@@ -604,6 +614,7 @@ ros_message! {
     gf_msgs::Candidate => "groupforward_msgs/msg/Candidate",
     gf_msgs::CameraStatus => "groupforward_msgs/msg/CameraStatus",
     gf_msgs::RejectCount => "groupforward_msgs/msg/RejectCount",
+    gf_msgs::StageTiming => "groupforward_msgs/msg/StageTiming",
     gf_msgs::NodeStatus => "groupforward_msgs/msg/NodeStatus",
     gf_msgs::ReferRequest => "groupforward_msgs/srv/Refer_Request",
     gf_msgs::ReferResponse => "groupforward_msgs/srv/Refer_Response",

@@ -368,7 +368,8 @@ proptest! {
             source: inst.id.clone(), target: "b".into(), views: vec![EdgeView::default()], ..Default::default() }] });
         round_trip(&InstanceMasks { header: header.clone(), camera: expr.clone(), instance_ids: vec![inst.id.clone()], ..Default::default() });
         round_trip(&NodeStatus { header, uptime_secs: 1.5, cameras: vec![CameraStatus { name: expr.clone(), ..Default::default() }],
-            tf_received: 3, tf_rejected: 1, rejections: vec![RejectCount { reason: expr.clone(), count: 2 }] });
+            tf_received: 3, tf_rejected: 1, rejections: vec![RejectCount { reason: expr.clone(), count: 2 }],
+            stages: vec![StageTiming { stage: expr.clone(), count: 3, last_ms: 1.5, p50_ms: 1.25, p99_ms: 9.0 }] });
         round_trip(&ReferRequest { expression: expr.clone(), use_view_pose: true, view_pose: pose, max_targets: 2, reasoner: String::new() });
         round_trip(&ReferResponse { success: true, instance_ids: vec![inst.id.clone()], confidences: vec![0.5],
             poses: vec![pose], candidates: vec![Candidate { id: inst.id.clone(), ..Default::default() }], ..Default::default() });

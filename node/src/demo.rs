@@ -514,6 +514,17 @@ pub fn run_demo(options: &DemoOptions) -> Result<DemoReport> {
             millis,
         });
     }
+    // The status after the queries: where the time went, the queries included.
+    let asked = answers.len() as u64;
+    let status = match wait_for("time the queries", timeout, || {
+        let json = query_json(&session, &status_key, Duration::from_millis(500)).ok()?;
+        let status: NodeStatus = serde_json::from_value(json).ok()?;
+        let timed = status.stages.iter().find(|s| s.stage == "query");
+        timed.is_some_and(|s| s.count >= asked).then_some(status)
+    }) {
+        Ok(later) => later,
+        Err(_) => status,
+    };
     shutdown.store(true, Ordering::Relaxed);
     match node_thread.join() {
         Ok(result) => {

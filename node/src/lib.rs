@@ -10,6 +10,7 @@
 //!
 //! | module | holds |
 //! |---|---|
+//! | [`timing`] | the pipeline's stages, their durations per pass, p50 / p99 over recent passes |
 //! | [`recon`] | the geometric core: rigid transforms, cameras, Gaussians, the tile rasterizer, gauge alignment, metrics |
 //! | [`frame`] | the data that flows between stages: images, synced frames, keyframes, window instances |
 //! | [`transport`] | rmw_zenoh-compatible zenoh transport, an in-memory one for tests; its config section |
@@ -41,5 +42,6 @@ pub mod recon;
 pub mod record;
 pub mod refer;
 pub mod replay;
+pub mod timing;
 pub mod transport;
 pub mod window;

@@ -22,6 +22,7 @@ use crate::model::semantic::{DenseFeatures, SemanticModel};
 use crate::model::text::TextEncoder;
 use crate::model::{ModelError, ModelsSection};
 use crate::recon::gaussians::Gaussians;
+use crate::timing::{Stage, StageTimes};
 
 #[derive(Debug, thiserror::Error)]
 pub enum WindowError {
@@ -134,6 +135,8 @@ pub struct WindowOutput {
     pub invalid_depth_pixels: usize,
     /// Why the window built nothing (no valid depth in any view); `None` when it ran.
     pub skipped: Option<String>,
+    /// Time per stage of this pass.
+    pub times: StageTimes,
 }
 
 /// Run the model on `frames`, group the embeddings, and split the Gaussians by instance. With a
@@ -145,19 +148,25 @@ pub fn window_pass(
     frames: &[SyncedFrame],
     grouping: &GroupingParams,
 ) -> Result<WindowOutput, WindowError> {
+    let mut times = StageTimes::default();
     let views: Vec<View<'_>> = frames.iter().map(View::from).collect();
-    let mut prediction = model.predict(&views)?;
-    // RGB-D: geometry from the depth camera (the eval's recall at IoU 0.5 doubles against the
-    // model's own depth), instances from the model.
-    if model.mode() == InputMode::Rgbd {
-        use_sensor_depth(&mut prediction, &views);
-    }
-    let invalid_depth_pixels = prediction
-        .depth
-        .iter()
-        .filter(|d| !(d.is_finite() && **d > 0.0))
-        .count();
-    let gaussians = model.to_gaussians(&prediction, &views)?;
+    let mut prediction = times.time(Stage::Model, || model.predict(&views))?;
+    let lifted = times.time(Stage::Lift, || {
+        // RGB-D: geometry from the depth camera (the eval's recall at IoU 0.5 doubles against
+        // the model's own depth), instances from the model.
+        if model.mode() == InputMode::Rgbd {
+            use_sensor_depth(&mut prediction, &views);
+        }
+        let invalid = prediction
+            .depth
+            .iter()
+            .filter(|d| !(d.is_finite() && **d > 0.0))
+            .count();
+        model
+            .to_gaussians(&prediction, &views)
+            .map(|g| (g, invalid))
+    });
+    let (gaussians, invalid_depth_pixels) = lifted?;
     if gaussians.is_empty() {
         return Ok(WindowOutput {
             instances: Vec::new(),
@@ -170,13 +179,17 @@ pub fn window_pass(
                 "no valid depth in any of the {} views: nothing to lift",
                 frames.len()
             )),
+            times,
         });
     }
-    let grouped = group(
-        &gaussians.embeddings,
-        gaussians.embedding_dim.max(1),
-        grouping,
-    )?;
+    let grouped = times.time(Stage::Group, || {
+        group(
+            &gaussians.embeddings,
+            gaussians.embedding_dim.max(1),
+            grouping,
+        )
+    })?;
+    let clean_started = std::time::Instant::now();
     let (w, h) = (prediction.width, prediction.height);
     let pixels = lifted_pixels(&prediction);
     // Map hygiene: no flying pixels or transparent Gaussians in objects, and a cluster that falls
@@ -208,6 +221,8 @@ pub fn window_pass(
         cell,
         grouping.hdbscan.min_cluster_size,
     );
+    times.0.push((Stage::Clean, clean_started.elapsed()));
+    let semantics_started = std::time::Instant::now();
     let (mut instance_prototypes, mut semantics_error) = (Vec::new(), None);
     if let Some(semantic) = semantic {
         match frames
@@ -225,6 +240,9 @@ pub fn window_pass(
             }
         }
     }
+    times
+        .0
+        .push((Stage::Semantics, semantics_started.elapsed()));
     let mut per_instance: Vec<Gaussians> =
         (0..clusters).map(|_| Gaussians::with_dims(0, 0)).collect();
     let mut noise = 0;
@@ -274,6 +292,7 @@ pub fn window_pass(
         semantics_error,
         invalid_depth_pixels,
         skipped: None,
+        times,
     })
 }
 

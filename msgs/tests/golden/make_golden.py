@@ -116,7 +116,9 @@ cases = [
                                                          frames_rejected=1, rate_hz=29.5, last_stamp=Time(sec=9, nanosec=1),
                                                          depth_pixels=76800, depth_pixels_invalid=4321)],
         tf_received=100, tf_rejected=2,
-        rejections=[T('groupforward_msgs/msg/RejectCount')(reason='size_mismatch', count=1)])),
+        rejections=[T('groupforward_msgs/msg/RejectCount')(reason='size_mismatch', count=1)],
+        stages=[T('groupforward_msgs/msg/StageTiming')(stage='window', count=12, last_ms=80.5, p50_ms=75.25,
+                                                       p99_ms=140.0)])),
     ('groupforward_msgs/srv/Refer_Request', T('groupforward_msgs/srv/Refer_Request')(
         expression='the trash bin near the cabinet', use_view_pose=True, view_pose=pose(0.5), max_targets=0,
         reasoner='builtin')),

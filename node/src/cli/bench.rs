@@ -78,6 +78,23 @@ pub enum BenchCommand {
         #[arg(long, default_value = "target/bench/outputs")]
         out: PathBuf,
     },
+    /// What accuracy costs in time: settings (views per window, HDBSCAN subsample and minimum
+    /// cluster size, RGB-D or RGB model) each replaying the same recorded scenes, timed per
+    /// stage and scored like `eval map`; writes `<out>/sweep.csv`, `sweep.md` and `pareto.svg`.
+    Sweep {
+        /// Two settings on one scene: a smoke test (CI runs it; its timings mean little).
+        #[arg(long)]
+        quick: bool,
+        #[arg(long, default_value = "benchmark")]
+        split: String,
+        /// Scenes per setting (held out from every choice of settings: 10-29).
+        #[arg(long, default_value_t = 5)]
+        scenes: u64,
+        #[arg(long, default_value_t = 10)]
+        first_index: u64,
+        #[arg(long, default_value = "target/bench/sweep")]
+        out: PathBuf,
+    },
     /// The map against random depth dropout: `eval map` on the same scenes with each level's
     /// `dropout:<p>` effect (0 = clean); writes `<out>.csv`, `<out>.md` and `<out>.svg`.
     Dropout {
@@ -295,6 +312,17 @@ pub fn run(command: BenchCommand) -> Result<()> {
             rounds,
             out,
         } => crate::bench_outputs::outputs_bench(&instances, &gaussians, rounds, &out),
+        BenchCommand::Sweep {
+            quick,
+            split,
+            scenes,
+            first_index,
+            out,
+        } => {
+            let scenes = if quick { 1 } else { scenes };
+            let files = crate::eval::split_scenes(&split, first_index, scenes)?;
+            crate::bench_sweep::sweep(&files, quick, &out)
+        }
         BenchCommand::Dropout {
             levels,
             split,

@@ -36,12 +36,14 @@ pub fn outputs_bench(
     let scene = groupforward_sim::scene::SceneFile::builtin("two_chairs")
         .ok_or_else(|| anyhow::anyhow!("the built-in two_chairs scene is missing"))?;
     let run = groupforward::eval::run::run_scene(&scene, &config, &mut models)?;
-    let mut window = run.window_millis.clone();
-    window.sort_by(f64::total_cmp);
-    let window_ms = window[window.len() / 2];
+    let stages = groupforward::timing::summarise(&run.window_times);
+    let window_ms = stages
+        .iter()
+        .find(|s| s.stage == groupforward::timing::Stage::Window)
+        .map_or(f64::NAN, |s| s.p50_ms);
     eprintln!(
-        "window pass (two_chairs, {} windows): p50 {window_ms:.0} ms",
-        window.len()
+        "window pass (two_chairs): {}",
+        groupforward::timing::describe(&stages)
     );
     let views = bench_views()?;
     let section = OutputsSection::default();

@@ -2,6 +2,8 @@
 
 use anyhow::{Context, Result};
 use groupforward::demo::{run_demo, DemoOptions, DemoReport};
+use groupforward::timing::{describe, Stage, StageSummary};
+use groupforward_msgs::gf_msgs::StageTiming;
 use groupforward_sim::effects::Preset;
 
 use crate::sim::load_scene;
@@ -45,6 +47,24 @@ pub fn run(args: DemoArgs) -> Result<()> {
     Ok(())
 }
 
+/// Where the node's time went, from its status message.
+fn stages_line(stages: &[StageTiming]) -> Option<String> {
+    let summaries: Vec<StageSummary> = stages
+        .iter()
+        .filter_map(|s| {
+            Some(StageSummary {
+                stage: Stage::from_name(&s.stage)?,
+                count: s.count,
+                last_ms: s.last_ms,
+                p50_ms: s.p50_ms,
+                p99_ms: s.p99_ms,
+            })
+        })
+        .collect();
+    (!summaries.is_empty())
+        .then(|| format!("  time, window -> map update: {}", describe(&summaries)))
+}
+
 fn print_report(report: &DemoReport) {
     println!(
         "groupforward demo: sim scene -> rosbag2 bag -> replay over an embedded zenoh peer -> node"
@@ -71,6 +91,9 @@ fn print_report(report: &DemoReport) {
                 100.0 * camera.depth_pixels_invalid as f64 / camera.depth_pixels as f64
             );
         }
+    }
+    if let Some(line) = stages_line(&report.status.stages) {
+        println!("{line}");
     }
     println!(
         "  tf: {} transforms accepted, {} rejected; {} malformed messages published on purpose",

@@ -13,6 +13,7 @@ use groupforward::eval::run::{run_scene, SceneRun};
 use groupforward::eval::score::{score_map, score_windows, Counts, ObjectRow, Summary};
 use groupforward::ingest::DepthValidity;
 use groupforward::model::ModelsSection;
+use groupforward::timing::{describe, summarise, Stage, StageSummary, StageTimes};
 use groupforward::window::WindowModels;
 use groupforward_sim::effects::Preset;
 use groupforward_sim::procedural::{generate, Split};
@@ -169,7 +170,7 @@ pub fn eval_config(model: Option<PathBuf>) -> Config {
     config
 }
 
-fn shipped_models() -> PathBuf {
+pub fn shipped_models() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../models")
 }
 
@@ -186,11 +187,12 @@ fn hex_digest(bytes: &[u8]) -> String {
 }
 
 /// What scoring a set of scenes gave.
+#[derive(Default)]
 pub struct Scored {
     pub total: Counts,
     pub rows: Vec<ObjectRow>,
     pub per_scene: Vec<(String, Summary, usize)>,
-    pub window_millis: Vec<f64>,
+    pub window_times: Vec<StageTimes>,
     pub depth: DepthValidity,
 }
 
@@ -203,12 +205,21 @@ pub fn score_scenes(
     what: &str,
 ) -> Result<Scored> {
     let bar = progress_bar(files.len() as u64, what);
-    let (mut total, mut rows, mut per_scene) = (Counts::default(), Vec::new(), Vec::new());
-    let (mut window_millis, mut depth) = (Vec::new(), DepthValidity::default());
+    let mut scored = Scored::default();
     for file in files {
         bar.set_message(file.name.clone());
         let run: SceneRun = run_scene(file, config, window_models)
             .with_context(|| format!("scene {}", file.name))?;
+        scored.add(&run);
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    Ok(scored)
+}
+
+impl Scored {
+    /// Score one scene's run and add it.
+    pub fn add(&mut self, run: &SceneRun) {
         let (scene_rows, mut counts) = score_map(
             &run.scene,
             &run.objects,
@@ -221,21 +232,13 @@ pub fn score_scenes(
             &run.windows,
             MIN_WINDOW_PIXELS,
         ));
-        total.add(&counts);
-        rows.extend(scene_rows);
-        window_millis.extend(run.window_millis.iter().copied());
-        depth.add(&run.depth);
-        per_scene.push((run.scene.clone(), counts.summary(), run.windows.len()));
-        bar.inc(1);
+        self.total.add(&counts);
+        self.rows.extend(scene_rows);
+        self.window_times.extend(run.window_times.iter().cloned());
+        self.depth.add(&run.depth);
+        self.per_scene
+            .push((run.scene.clone(), counts.summary(), run.windows.len()));
     }
-    bar.finish_and_clear();
-    Ok(Scored {
-        total,
-        rows,
-        per_scene,
-        window_millis,
-        depth,
-    })
 }
 
 /// Share of the depth pixels ingest received that were invalid.
@@ -258,7 +261,7 @@ fn eval_map(
         total,
         rows,
         per_scene,
-        mut window_millis,
+        window_times,
         depth,
     } = score_scenes(files, &config, &mut window_models, "eval map")?;
     let summary = total.summary();
@@ -284,13 +287,8 @@ fn eval_map(
             r.size_ratio
         )?;
     }
-    window_millis.sort_by(f64::total_cmp);
-    let percentile = |p: f64| {
-        window_millis
-            .get(((window_millis.len() as f64 - 1.0) * p).round() as usize)
-            .copied()
-            .unwrap_or(0.0)
-    };
+    let stages = summarise(&window_times);
+    let window = stages.iter().find(|s| s.stage == Stage::Window).copied();
     let reconstruction = config.models.reconstruction.clone().unwrap_or_default();
     let json = serde_json::json!({
         "summary": summary,
@@ -305,7 +303,12 @@ fn eval_map(
             "out_of_range": depth.out_of_range,
             "isolated": depth.isolated,
         },
-        "window_millis": {"p50": percentile(0.5), "p99": percentile(0.99), "windows": window_millis.len()},
+        "window_millis": {
+            "p50": window.map_or(0.0, |w| w.p50_ms),
+            "p99": window.map_or(0.0, |w| w.p99_ms),
+            "windows": window_times.len(),
+            "stages": stages_json(&stages),
+        },
         "models": {
             "reconstruction": reconstruction.display().to_string(),
             "reconstruction_sha256": model_hash(&reconstruction)?,
@@ -334,13 +337,25 @@ fn eval_map(
         depth.isolated
     );
     println!(
-        "window pass to map update: p50 {:.0} ms, p99 {:.0} ms over {} windows; wrote {}",
-        percentile(0.5),
-        percentile(0.99),
-        window_millis.len(),
+        "window pass to map update: {}; wrote {}",
+        describe(&stages),
         out.display()
     );
     Ok(())
+}
+
+/// Per-stage p50 / p99 as JSON, keyed by stage name.
+pub fn stages_json(stages: &[StageSummary]) -> serde_json::Value {
+    stages
+        .iter()
+        .map(|s| {
+            (
+                s.stage.name().to_owned(),
+                serde_json::json!({"p50_ms": s.p50_ms, "p99_ms": s.p99_ms, "count": s.count}),
+            )
+        })
+        .collect::<serde_json::Map<_, _>>()
+        .into()
 }
 
 fn csv_writer(path: &Path) -> Result<std::io::BufWriter<std::fs::File>> {

@@ -5,6 +5,7 @@ mod bench;
 mod bench_outputs;
 mod bench_refer;
 mod bench_support;
+mod bench_sweep;
 mod demo;
 mod eval;
 mod eval_refer;

@@ -6,7 +6,6 @@
 //! score what came out.
 
 use std::collections::{BTreeMap, HashMap};
-use std::time::Instant;
 
 use glam::DVec3;
 use groupforward_sim::record::{record_to_memory, RecordOptions};
@@ -21,6 +20,7 @@ use crate::graph::{GraphError, SceneMap};
 use crate::ingest::{DepthValidity, Ingest};
 use crate::node::Node;
 use crate::recon::boxes::{OrientedBox, DEFAULT_TRIM};
+use crate::timing::{Stage, StageTimes};
 use crate::window::{WindowError, WindowModels};
 
 #[derive(Debug, thiserror::Error)]
@@ -44,8 +44,8 @@ pub struct SceneRun {
     /// The final map's object list as the node publishes it.
     pub instances: Vec<ListedInstance>,
     pub windows: Vec<WindowRecord>,
-    /// Model pass to map update, per window.
-    pub window_millis: Vec<f64>,
+    /// Model pass to map update, per window and stage.
+    pub window_times: Vec<StageTimes>,
     pub frames: usize,
     /// Depth pixels ingest received, and why some were invalid (never lifted).
     pub depth: DepthValidity,
@@ -100,6 +100,19 @@ pub fn truth_objects(scene: &Scene, pixels: impl Fn(u16) -> u64) -> Vec<TruthObj
         .collect()
 }
 
+/// A scene recorded once, to be replayed under several settings: its bag (no ground-truth
+/// topics) and, beside it, the ground truth the scorer reads.
+#[derive(Debug, Clone)]
+pub struct RecordedScene {
+    pub scene: String,
+    pub room_area: f64,
+    pub objects: Vec<TruthObject>,
+    pub frames: usize,
+    bag: Vec<u8>,
+    /// Object pixels per frame, by the stamp the frame's messages carry.
+    frame_pixels: HashMap<i64, BTreeMap<u16, u64>>,
+}
+
 /// Run `file` through the node's stages with `models`; `config` gives the topics, ingest and
 /// window settings (its model paths are not read: `models` is loaded once for all scenes).
 pub fn run_scene(
@@ -107,6 +120,11 @@ pub fn run_scene(
     config: &Config,
     models: &mut WindowModels,
 ) -> Result<SceneRun, EvalError> {
+    replay_scene(&record_scene(file)?, config, models)
+}
+
+/// Render and record `file` as the node would receive it, with the ground truth beside it.
+pub fn record_scene(file: &SceneFile) -> Result<RecordedScene, EvalError> {
     let sim_error = |e: String| EvalError::Sim(file.name.clone(), e);
     let sim = Simulation::new(file.clone()).map_err(|e| sim_error(e.to_string()))?;
     let options = RecordOptions {
@@ -129,8 +147,6 @@ pub fn run_scene(
             (stamp, pixels)
         })
         .collect();
-    let frame_pixels: HashMap<i64, &BTreeMap<u16, u64>> =
-        per_frame.iter().map(|(t, p)| (*t, p)).collect();
     let mut total: BTreeMap<u16, u64> = BTreeMap::new();
     for (_, pixels) in &per_frame {
         for (id, n) in pixels.iter() {
@@ -138,6 +154,25 @@ pub fn run_scene(
         }
     }
     let objects = truth_objects(&sim.scene, |id| total.get(&id).copied().unwrap_or(0));
+    let room = file.room.size;
+    Ok(RecordedScene {
+        scene: file.name.clone(),
+        room_area: room[0] * room[1],
+        objects,
+        frames: sim.frame_count(),
+        bag,
+        frame_pixels: per_frame.into_iter().collect(),
+    })
+}
+
+/// Replay a recorded scene through the node's stages with `models` and `config` (see
+/// [`run_scene`]).
+pub fn replay_scene(
+    recorded: &RecordedScene,
+    config: &Config,
+    models: &mut WindowModels,
+) -> Result<SceneRun, EvalError> {
+    let frame_pixels = &recorded.frame_pixels;
 
     let routes: HashMap<String, crate::ingest::Route> = Ingest::routes(&config.cameras, &config.tf)
         .into_iter()
@@ -145,15 +180,15 @@ pub fn run_scene(
     let mut node = Node::new(config);
     let mut map = SceneMap::default();
     let mut windows = Vec::new();
-    let mut window_millis = Vec::new();
-    let stream = mcap::MessageStream::new(&bag).map_err(|e| EvalError::Bag(e.to_string()))?;
+    let mut window_times = Vec::new();
+    let stream =
+        mcap::MessageStream::new(&recorded.bag).map_err(|e| EvalError::Bag(e.to_string()))?;
     for message in stream {
         let message = message.map_err(|e| EvalError::Bag(e.to_string()))?;
         let Some(route) = routes.get(&message.channel.topic) else {
             continue;
         };
         for frames in node.step(*route, &message.data).windows {
-            let started = Instant::now();
             let stamp = frames.last().map_or(0, |f| f.stamp_nanos);
             let mut seen: BTreeMap<u16, u64> = BTreeMap::new();
             for frame in &frames {
@@ -166,13 +201,18 @@ pub fn run_scene(
                 }
             }
             let output = models.pass(&frames)?;
+            // Scoring's boxes, outside the timed stages.
             let boxes: Vec<OrientedBox> = output
                 .instances
                 .iter()
                 .map(|i| OrientedBox::fit(&i.gaussians.means, DEFAULT_TRIM))
                 .collect();
-            let report = map.fuse(output.instances, &output.views, stamp)?;
-            window_millis.push(started.elapsed().as_secs_f64() * 1e3);
+            let mut times = output.times;
+            let report = times.time(Stage::Fusion, || {
+                map.fuse(output.instances, &output.views, stamp)
+            })?;
+            times.0.push((Stage::Window, times.total()));
+            window_times.push(times);
             windows.push(WindowRecord {
                 objects: seen.into_iter().collect(),
                 instances: boxes.into_iter().zip(report.assigned).collect(),
@@ -205,15 +245,14 @@ pub fn run_scene(
             bbox: i.oriented_box(),
         })
         .collect();
-    let room = file.room.size;
     Ok(SceneRun {
-        scene: file.name.clone(),
-        room_area: room[0] * room[1],
-        objects,
+        scene: recorded.scene.clone(),
+        room_area: recorded.room_area,
+        objects: recorded.objects.clone(),
         instances,
         windows,
-        window_millis,
-        frames: sim.frame_count(),
+        window_times,
+        frames: recorded.frames,
         depth,
         map,
     })

@@ -80,7 +80,6 @@ pub fn run(
     // Every interface is declared before the (slow) model load, so peers see the node at once.
     let (windows, worker) = worker::start_window_worker(config, &shared);
     let mut windows = windows;
-    let mut windows_dropped = 0u64;
     let mut model_gone = false;
     tracing::info!(
         subscriptions = declared.subscriptions.len(),
@@ -107,8 +106,11 @@ pub fn run(
                     match sender.try_send(window) {
                         Ok(()) => {}
                         Err(std::sync::mpsc::TrySendError::Full(_)) => {
-                            windows_dropped += 1;
-                            tracing::debug!(windows_dropped, "window pass busy; window dropped");
+                            node.windows_dropped += 1;
+                            tracing::debug!(
+                                dropped = node.windows_dropped,
+                                "window pass busy; window dropped"
+                            );
                         }
                         Err(std::sync::mpsc::TrySendError::Disconnected(_)) => {
                             model_gone = true;
@@ -166,8 +168,11 @@ pub fn run(
             tracing::error!("the output publisher panicked");
         }
     }
-    if windows_dropped > 0 {
-        tracing::info!(windows_dropped, "windows dropped while the model was busy");
+    if node.windows_dropped > 0 {
+        tracing::info!(
+            dropped = node.windows_dropped,
+            "windows dropped while the model was busy"
+        );
     }
     if !last.cameras.is_empty() || node.ingest.tf_received > 0 {
         last = status::publish_status(
@@ -269,6 +274,12 @@ mod tests {
         assert!(!published.is_empty());
         let status: NodeStatus = cdr::decode(published.last().unwrap()).unwrap();
         assert_eq!(status.cameras[0].name, "front");
+        // Every message the loop handled was timed as ingest; no window ran, so no window stage.
+        let ingest = status.stages.iter().find(|s| s.stage == "ingest");
+        let ingest = ingest.unwrap_or_else(|| panic!("no ingest timing in {:?}", status.stages));
+        assert!(ingest.count >= 3, "{ingest:?}");
+        assert!(ingest.p50_ms <= ingest.p99_ms && ingest.p99_ms.is_finite());
+        assert!(status.stages.iter().all(|s| s.stage != "window"));
     }
 
     /// A map with one instance: a small cube of Gaussians.

@@ -21,6 +21,7 @@ use super::error::Result;
 use super::services::{current_snapshot_and_generation, Shared};
 use crate::config::Config;
 use crate::outputs::{self, OutputsSection};
+use crate::timing::Stage;
 use crate::transport::{Endpoint, Publisher, Transport};
 
 /// The output topics the configuration switches on, resolved.
@@ -204,6 +205,9 @@ fn publish_loop(
             match encode(section, shared, &mut listed_before) {
                 Ok(Some((fresh, at))) => {
                     publishers.publish(&fresh);
+                    if let Ok(mut s) = shared.lock() {
+                        s.stages.record(Stage::Publish, now.elapsed());
+                    }
                     encoded = Some(fresh);
                     published_generation = at;
                     last_publish = Some(now);

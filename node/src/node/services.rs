@@ -27,6 +27,7 @@ use crate::outputs::ViewSource;
 use crate::recon::boxes::OrientedBox;
 use crate::recon::Rigid;
 use crate::refer::{self, ReferScene, ReferSection};
+use crate::timing::{Stage, StageClock};
 use crate::transport::{Endpoint, Transport};
 
 /// State shared with service and JSON handlers, which run on transport threads.
@@ -64,6 +65,8 @@ pub struct Shared {
     pub scene_graph_json: Option<serde_json::Value>,
     /// Boxes of the listed instances, refitted only when their Gaussians change.
     pub boxes: BoxCache,
+    /// Recent durations of the window, publishing and query stages (the status reports them).
+    pub stages: StageClock,
 }
 
 fn time_of(nanos: i64) -> Time {
@@ -366,8 +369,18 @@ fn parse_query(
     }
 }
 
-/// Answer a referring request on the node's current snapshot (the service's work, CDR aside).
+/// Answer a referring request on the node's current snapshot (the service's work, CDR aside),
+/// timed as the query stage.
 pub fn refer_request(shared: &Mutex<Shared>, request: &ReferRequest) -> ReferResponse {
+    let started = std::time::Instant::now();
+    let response = answer_refer(shared, request);
+    if let Ok(mut s) = shared.lock() {
+        s.stages.record(Stage::Query, started.elapsed());
+    }
+    response
+}
+
+fn answer_refer(shared: &Mutex<Shared>, request: &ReferRequest) -> ReferResponse {
     let failure = |message: String| {
         // A question the map cannot answer is an answer, not a fault of the node.
         tracing::info!("refer {:?}: {message}", request.expression);

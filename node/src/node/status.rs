@@ -5,13 +5,14 @@ use std::collections::HashMap;
 use std::sync::Mutex;
 use std::time::Instant;
 
-use groupforward_msgs::gf_msgs::{CameraStatus, NodeStatus, RejectCount};
+use groupforward_msgs::gf_msgs::{CameraStatus, NodeStatus, RejectCount, StageTiming};
 use groupforward_msgs::{builtin_interfaces::Time, cdr, std_msgs::Header};
 
 use super::services::Shared;
 use crate::config::Config;
 use crate::frame::SyncedFrame;
 use crate::ingest::{Ingest, Reject, Rejection, Route};
+use crate::timing::{Stage, StageClock, StageSummary};
 use crate::transport::Publisher;
 use crate::window::{Keyframes, WindowSection};
 
@@ -34,6 +35,10 @@ pub struct Node {
     started: Instant,
     period_start: Instant,
     period_received: Vec<u64>,
+    /// Recent ingest durations (one per message).
+    pub stages: StageClock,
+    /// Keyframe windows dropped because the window pass was still busy with the previous one.
+    pub windows_dropped: u64,
 }
 
 impl Node {
@@ -47,6 +52,8 @@ impl Node {
             started: Instant::now(),
             period_start: Instant::now(),
             period_received: vec![0; cameras],
+            stages: StageClock::default(),
+            windows_dropped: 0,
         }
     }
 
@@ -54,6 +61,7 @@ impl Node {
     /// the windows that became complete.
     pub fn step(&mut self, route: Route, payload: &[u8]) -> Step {
         let _span = tracing::debug_span!("ingest", ?route).entered();
+        let started = std::time::Instant::now();
         let frames = self.ingest.handle(route, payload);
         let mut step = Step {
             synced: frames.len(),
@@ -68,6 +76,7 @@ impl Node {
                 step.windows.extend(store.take_window());
             }
         }
+        self.stages.record(Stage::Ingest, started.elapsed());
         step
     }
 
@@ -127,7 +136,18 @@ impl Node {
                     count,
                 })
                 .collect(),
+            stages: self.stages.summary().iter().map(stage_timing).collect(),
         }
+    }
+}
+
+fn stage_timing(s: &StageSummary) -> StageTiming {
+    StageTiming {
+        stage: s.stage.name().to_owned(),
+        count: s.count,
+        last_ms: s.last_ms,
+        p50_ms: s.p50_ms,
+        p99_ms: s.p99_ms,
     }
 }
 
@@ -136,6 +156,9 @@ pub(super) fn wall_nanos() -> i64 {
         .duration_since(std::time::UNIX_EPOCH)
         .map_or(0, |d| d.as_nanos() as i64)
 }
+
+/// The status's reason code for windows dropped while the window pass was busy.
+pub const WINDOW_BUSY: &str = "window_dropped_busy";
 
 /// The status's reason code for windows that built nothing because no view had valid depth.
 pub const WINDOW_WITHOUT_DEPTH: &str = "window_without_valid_depth";
@@ -147,6 +170,12 @@ pub(super) fn publish_status(
     shared: &Mutex<Shared>,
 ) -> NodeStatus {
     let mut status = node.status(now);
+    if node.windows_dropped > 0 {
+        status.rejections.push(RejectCount {
+            reason: WINDOW_BUSY.to_owned(),
+            count: node.windows_dropped,
+        });
+    }
     if let Ok(s) = shared.lock() {
         if s.windows_skipped > 0 {
             status.rejections.push(RejectCount {
@@ -154,6 +183,12 @@ pub(super) fn publish_status(
                 count: s.windows_skipped,
             });
         }
+        // Ingest runs on the node loop; the other stages on the worker, publisher and service
+        // threads. One list in data-flow order.
+        let mut summaries = node.stages.summary();
+        summaries.extend(s.stages.summary());
+        summaries.sort_by_key(|t| t.stage);
+        status.stages = summaries.iter().map(stage_timing).collect();
     }
     match cdr::encode(&status) {
         Ok(bytes) => {
@@ -195,5 +230,39 @@ mod tests {
         assert_eq!(status.rejections.len(), 1);
         assert_eq!(status.rejections[0].reason, "queue_overflow");
         assert_eq!(status.rejections[0].count, 2);
+    }
+
+    #[test]
+    fn windows_dropped_while_the_pass_was_busy_and_stage_times_are_in_the_published_status() {
+        use crate::timing::{Stage, StageTimes};
+        use crate::transport::{Endpoint, MemoryTransport, Transport};
+        use groupforward_msgs::RosMessage;
+        let config = Config::default();
+        let mut node = Node::new(&config);
+        node.windows_dropped = 3;
+        node.stages
+            .record(Stage::Ingest, Duration::from_micros(200));
+        let shared = Mutex::new(Shared::default());
+        let mut times = StageTimes::default();
+        times.0.push((Stage::Model, Duration::from_millis(80)));
+        times.0.push((Stage::Window, Duration::from_millis(250)));
+        shared.lock().unwrap().stages.record_all(&times);
+        let bus = MemoryTransport::new();
+        let endpoint = Endpoint::new(
+            "/groupforward/status",
+            NodeStatus::TYPE_NAME,
+            Default::default(),
+        )
+        .unwrap();
+        let publisher = bus.advertise(&endpoint).unwrap();
+        publish_status(&mut node, Instant::now(), publisher.as_ref(), &shared);
+        let status: NodeStatus = cdr::decode(&bus.published("/groupforward/status")[0]).unwrap();
+        let busy = status.rejections.iter().find(|r| r.reason == WINDOW_BUSY);
+        assert_eq!(busy.map(|r| r.count), Some(3));
+        // Ingest (node loop) and the worker's stages in one list, in data-flow order.
+        let stages: Vec<&str> = status.stages.iter().map(|s| s.stage.as_str()).collect();
+        assert_eq!(stages, ["ingest", "model", "window"]);
+        assert!((status.stages[1].p50_ms - 80.0).abs() < 1e-9);
+        assert_eq!(shared.lock().unwrap().status, status);
     }
 }

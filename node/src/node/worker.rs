@@ -4,12 +4,12 @@
 use std::sync::mpsc::{sync_channel, SyncSender};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
-use std::time::Instant;
 
 use super::services::Shared;
 use crate::config::Config;
 use crate::frame::SyncedFrame;
 use crate::outputs::ViewSource;
+use crate::timing::Stage;
 use crate::window::WindowModels;
 
 /// Start the thread that loads the models, runs window passes and fuses their instances into the
@@ -50,7 +50,6 @@ pub(super) fn start_window_worker(
         }
         while let Ok(frames) = receiver.recv() {
             let stamp = frames.last().map_or(0, |f| f.stamp_nanos);
-            let started = Instant::now();
             match models.pass(&frames) {
                 Ok(output) => {
                     if let Some(reason) = &output.skipped {
@@ -73,17 +72,24 @@ pub(super) fn start_window_worker(
                         .collect();
                     let Ok(mut s) = shared.lock() else { return };
                     let found = output.instances.len();
-                    match s.map.fuse(output.instances, &output.views, stamp) {
+                    let mut times = output.times;
+                    let fused = times.time(Stage::Fusion, || {
+                        s.map.fuse(output.instances, &output.views, stamp)
+                    });
+                    match fused {
                         Ok(report) => {
                             s.view_sources = sources;
-                            s.refresh_instances();
+                            times.time(Stage::List, || s.refresh_instances());
+                            let millis = times.total().as_millis() as u64;
+                            times.0.push((Stage::Window, times.total()));
+                            s.stages.record_all(&times);
                             tracing::info!(
                                 instances = found,
                                 born = report.born,
                                 merged = report.merged,
                                 died = report.died,
                                 total = s.map.instances.len(),
-                                millis = started.elapsed().as_millis() as u64,
+                                millis,
                                 "window fused"
                             );
                         }

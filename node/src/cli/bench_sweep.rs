@@ -1,0 +1,343 @@
+//! `groupforward bench sweep`: what accuracy costs in time. Each setting (views per window, the
+//! HDBSCAN subsample and minimum cluster size, the RGB-D or RGB model) replays the same recorded
+//! scenes through the node's stages, timed per stage, and scores the map with `eval map`'s
+//! yardstick. Writes `sweep.csv`, `sweep.md` and `pareto.svg` (recall against window latency).
+
+use std::path::Path;
+
+use anyhow::{Context, Result};
+use groupforward::eval::run::{record_scene, replay_scene, RecordedScene};
+use groupforward::timing::{summarise, Stage, StageSummary};
+use groupforward::window::WindowModels;
+use groupforward_sim::scene::SceneFile;
+
+use crate::eval::{eval_config, shipped_models, Scored};
+use crate::sim::progress_bar;
+
+/// One point of the sweep: the shipped default with one knob turned.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Setting {
+    pub name: String,
+    pub views: usize,
+    /// HDBSCAN runs on at most this many Gaussians (an even stride), the rest are assigned.
+    pub max_cluster_points: usize,
+    pub min_cluster_size: usize,
+    /// Reconstruction model manifest, relative to `models/`.
+    pub model: &'static str,
+}
+
+const RGBD: &str = "groupforward-mini-rgbd.toml";
+const RGB: &str = "groupforward-mini-rgb.toml";
+
+impl Setting {
+    fn default_setting() -> Self {
+        let grouping = groupforward::group::GroupingParams::default();
+        Self {
+            name: "default".into(),
+            views: groupforward::window::WindowSection::default().views,
+            max_cluster_points: grouping.max_cluster_points,
+            min_cluster_size: grouping.hdbscan.min_cluster_size,
+            model: RGBD,
+        }
+    }
+
+    fn with(name: &str, change: impl FnOnce(&mut Self)) -> Self {
+        let mut setting = Self::default_setting();
+        setting.name = name.into();
+        change(&mut setting);
+        setting
+    }
+}
+
+/// The settings of a full sweep, or of `--quick` (the default and one cheaper point).
+pub fn settings(quick: bool) -> Vec<Setting> {
+    let mut all = vec![
+        Setting::default_setting(),
+        Setting::with("views_2", |s| s.views = 2),
+    ];
+    if quick {
+        return all;
+    }
+    all.extend([
+        Setting::with("views_8", |s| s.views = 8),
+        Setting::with("views_16", |s| s.views = 16),
+        Setting::with("views_24", |s| s.views = 24),
+        Setting::with("subsample_8k", |s| s.max_cluster_points = 8_000),
+        Setting::with("subsample_40k", |s| s.max_cluster_points = 40_000),
+        Setting::with("min_cluster_15", |s| s.min_cluster_size = 15),
+        Setting::with("min_cluster_60", |s| s.min_cluster_size = 60),
+        Setting::with("rgb_model", |s| s.model = RGB),
+    ]);
+    all
+}
+
+/// One setting's result.
+struct Point {
+    setting: Setting,
+    scored: Scored,
+    stages: Vec<StageSummary>,
+}
+
+impl Point {
+    fn stage(&self, stage: Stage) -> Option<StageSummary> {
+        self.stages.iter().find(|s| s.stage == stage).copied()
+    }
+
+    fn window_p50(&self) -> f64 {
+        self.stage(Stage::Window).map_or(f64::NAN, |s| s.p50_ms)
+    }
+}
+
+pub fn sweep(files: &[SceneFile], quick: bool, out: &Path) -> Result<()> {
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    let settings = settings(quick);
+    // Every setting replays the same recordings (rendering once, not once per setting).
+    let bar = progress_bar(files.len() as u64, "recording scenes");
+    let mut recorded: Vec<RecordedScene> = Vec::new();
+    for file in files {
+        bar.set_message(file.name.clone());
+        recorded.push(record_scene(file).with_context(|| format!("scene {}", file.name))?);
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    let mut points = Vec::new();
+    let mut loaded: Option<(&'static str, WindowModels)> = None;
+    for setting in &settings {
+        let mut config = eval_config(Some(shipped_models().join(setting.model)));
+        config.window.views = setting.views;
+        // More views than the default's four see the same stretch of the trajectory more densely
+        // (keyframes closer together), so windows span what a default window spans and short
+        // scenes still fill them.
+        if setting.views > 4 {
+            let denser = 4.0 / setting.views as f64;
+            config.window.min_translation_m *= denser;
+            config.window.min_rotation_deg *= denser;
+            config.window.max_interval_secs *= denser;
+            config.window.max_keyframes = config.window.max_keyframes.max(setting.views);
+        }
+        if loaded
+            .as_ref()
+            .is_none_or(|(model, _)| *model != setting.model)
+        {
+            let models = WindowModels::load(&config.models, &config.semantics)
+                .context("loading the models (`make setup` installs ONNX Runtime)")?;
+            loaded = Some((setting.model, models));
+        }
+        let Some((_, models)) = loaded.as_mut() else {
+            unreachable!("loaded above")
+        };
+        models.grouping.max_cluster_points = setting.max_cluster_points;
+        models.grouping.hdbscan.min_cluster_size = setting.min_cluster_size;
+        let bar = progress_bar(recorded.len() as u64, &setting.name);
+        let mut scored = Scored::default();
+        for scene in &recorded {
+            bar.set_message(scene.scene.clone());
+            let run = replay_scene(scene, &config, models)
+                .with_context(|| format!("{}: scene {}", setting.name, scene.scene))?;
+            scored.add(&run);
+            bar.inc(1);
+        }
+        bar.finish_and_clear();
+        let stages = summarise(&scored.window_times);
+        let point = Point {
+            setting: setting.clone(),
+            scored,
+            stages,
+        };
+        let s = point.scored.total.summary();
+        eprintln!(
+            "{:<15} window p50 {:>6.0} ms   recall@0.25 {:>5.1}%   precision {:>5.1}%",
+            setting.name,
+            point.window_p50(),
+            100.0 * s.recall_at_25,
+            100.0 * s.precision
+        );
+        points.push(point);
+    }
+    let threads = rayon::current_num_threads();
+    std::fs::write(out.join("sweep.csv"), csv(&points))?;
+    let md = markdown(&points, files.len(), threads, quick);
+    std::fs::write(out.join("sweep.md"), &md)?;
+    pareto_chart(&out.join("pareto.svg"), &points)?;
+    print!("{md}");
+    println!("wrote {}", out.join("sweep.{csv,md}, pareto.svg").display());
+    Ok(())
+}
+
+fn csv(points: &[Point]) -> String {
+    let mut out = String::from(
+        "setting,views,max_cluster_points,min_cluster_size,model,windows,window_p50_ms,window_p99_ms",
+    );
+    for stage in Stage::WINDOW_PASS {
+        out.push_str(&format!(",{}_p50_ms", stage.name()));
+    }
+    out.push_str(",recall_at_25,recall_at_50,precision,duplicate_rate,merged_objects,name_top1,room_instances,id_switches_per_100_sightings,objects_scored\n");
+    for p in points {
+        let s = p.scored.total.summary();
+        let window = p.stage(Stage::Window);
+        out.push_str(&format!(
+            "{},{},{},{},{},{},{:.2},{:.2}",
+            p.setting.name,
+            p.setting.views,
+            p.setting.max_cluster_points,
+            p.setting.min_cluster_size,
+            p.setting.model.trim_end_matches(".toml"),
+            window.map_or(0, |w| w.count),
+            window.map_or(f64::NAN, |w| w.p50_ms),
+            window.map_or(f64::NAN, |w| w.p99_ms),
+        ));
+        for stage in Stage::WINDOW_PASS {
+            out.push_str(&format!(
+                ",{:.2}",
+                p.stage(stage).map_or(f64::NAN, |s| s.p50_ms)
+            ));
+        }
+        out.push_str(&format!(
+            ",{:.4},{:.4},{:.4},{:.4},{},{:.4},{},{:.3},{}\n",
+            s.recall_at_25,
+            s.recall_at_50,
+            s.precision,
+            s.duplicate_rate,
+            s.merged_objects,
+            s.name_top1,
+            s.room_instances,
+            s.id_switches_per_100_sightings,
+            s.objects_scored
+        ));
+    }
+    out
+}
+
+/// Settings that ran windows and that no other setting beats on both window p50 and
+/// recall@0.25.
+fn pareto_front(points: &[Point]) -> Vec<usize> {
+    let recall = |p: &Point| p.scored.total.summary().recall_at_25;
+    let mut front: Vec<usize> = (0..points.len())
+        .filter(|&i| points[i].window_p50().is_finite())
+        .filter(|&i| {
+            !points.iter().enumerate().any(|(j, q)| {
+                j != i
+                    && q.window_p50() <= points[i].window_p50()
+                    && recall(q) >= recall(&points[i])
+                    && (q.window_p50() < points[i].window_p50() || recall(q) > recall(&points[i]))
+            })
+        })
+        .collect();
+    front.sort_by(|&a, &b| points[a].window_p50().total_cmp(&points[b].window_p50()));
+    front
+}
+
+fn markdown(points: &[Point], scenes: usize, threads: usize, quick: bool) -> String {
+    let front = pareto_front(points);
+    let mut md = format!(
+        "Accuracy against time: each setting replays the same {scenes} recorded benchmark scene(s) through the node's stages (every window, as `eval map` does) and scores the final map. Window = model pass to map update, {threads} threads; p50 / p99 over all windows of the run. Settings with more than 4 views take keyframes proportionally closer together (a window spans the same stretch of trajectory, seen by more views). Pareto-optimal settings (no other is both faster and more accurate on recall@0.25) are marked *.\n\n| setting | views | HDBSCAN subsample | min cluster | model | windows | window p50 / p99 (ms) | model | group | semantics | fusion | recall@0.25 | recall@0.5 | precision | duplicates | names | id switches / 100 |\n| --- | ---: | ---: | ---: | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |\n"
+    );
+    for (i, p) in points.iter().enumerate() {
+        let s = p.scored.total.summary();
+        let ms = |stage: Stage| {
+            p.stage(stage)
+                .map_or("-".to_owned(), |s| format!("{:.0}", s.p50_ms))
+        };
+        let window = p.stage(Stage::Window);
+        md.push_str(&format!(
+            "| {}{} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {:.1}% | {:.1}% | {:.1}% | {:.1}% | {:.1}% | {:.2} |\n",
+            p.setting.name,
+            if front.contains(&i) { " *" } else { "" },
+            p.setting.views,
+            p.setting.max_cluster_points,
+            p.setting.min_cluster_size,
+            p.setting.model.trim_end_matches(".toml"),
+            window.map_or(0, |w| w.count),
+            window.map_or("no window".to_owned(), |w| format!(
+                "{:.0} / {:.0}",
+                w.p50_ms, w.p99_ms
+            )),
+            ms(Stage::Model),
+            ms(Stage::Group),
+            ms(Stage::Semantics),
+            ms(Stage::Fusion),
+            100.0 * s.recall_at_25,
+            100.0 * s.recall_at_50,
+            100.0 * s.precision,
+            100.0 * s.duplicate_rate,
+            100.0 * s.name_top1,
+            s.id_switches_per_100_sightings,
+        ));
+    }
+    md.push_str(&format!(
+        "\nReproduce: `groupforward bench sweep{} --out DIR` (or `make sweep`).\n",
+        if quick { " --quick" } else { "" }
+    ));
+    md
+}
+
+/// Recall@0.25 against window p50 (log scale), every setting labelled, the Pareto front joined.
+fn pareto_chart(path: &Path, points: &[Point]) -> Result<()> {
+    use plotters::prelude::*;
+    let finite: Vec<&Point> = points
+        .iter()
+        .filter(|p| p.window_p50().is_finite() && p.window_p50() > 0.0)
+        .collect();
+    let x0 = finite
+        .iter()
+        .map(|p| p.window_p50())
+        .fold(f64::INFINITY, f64::min)
+        .min(50.0);
+    let x1 = finite
+        .iter()
+        .map(|p| p.window_p50())
+        .fold(0.0f64, f64::max)
+        .max(200.0);
+    let err = |e: &dyn std::fmt::Display| anyhow::anyhow!("{e}");
+    let root = SVGBackend::new(path, (760, 460)).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| err(&e))?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption("What accuracy costs in time", ("sans-serif", 20))
+        .margin(14)
+        .x_label_area_size(42)
+        .y_label_area_size(52)
+        .build_cartesian_2d((x0 * 0.8..x1 * 1.25).log_scale(), 0.0..100.0)
+        .map_err(|e| err(&e))?;
+    chart
+        .configure_mesh()
+        .light_line_style(WHITE)
+        .x_desc("window -> map update, p50 (ms, log scale)")
+        .y_desc("map recall@0.25 (%)")
+        .draw()
+        .map_err(|e| err(&e))?;
+    let front: Vec<(f64, f64)> = pareto_front(points)
+        .into_iter()
+        .map(|i| {
+            (
+                points[i].window_p50(),
+                100.0 * points[i].scored.total.summary().recall_at_25,
+            )
+        })
+        .collect();
+    chart
+        .draw_series(LineSeries::new(front, BLUE.stroke_width(2)))
+        .map_err(|e| err(&e))?;
+    for p in finite {
+        let xy = (
+            p.window_p50(),
+            100.0 * p.scored.total.summary().recall_at_25,
+        );
+        let colour = if p.setting.name == "default" {
+            RED
+        } else {
+            BLACK
+        };
+        chart
+            .draw_series(std::iter::once(Circle::new(xy, 4, colour.filled())))
+            .map_err(|e| err(&e))?;
+        chart
+            .draw_series(std::iter::once(Text::new(
+                p.setting.name.clone(),
+                xy,
+                ("sans-serif", 13).into_font(),
+            )))
+            .map_err(|e| err(&e))?;
+    }
+    root.present().map_err(|e| err(&e))?;
+    Ok(())
+}
