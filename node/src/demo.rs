@@ -62,7 +62,7 @@ impl Default for DemoOptions {
     fn default() -> Self {
         Self {
             scene: SceneFile::builtin("two_chairs").unwrap_or_else(|| unreachable!()),
-            rate: 0.5,
+            rate: 1.0,
             record_outputs: None,
         }
     }

@@ -30,7 +30,7 @@ use crate::transport::Transport;
 pub use error::{NodeError, Result};
 pub use queue::InputQueue;
 pub use services::{declare, instance_messages, Declared, Shared};
-pub use status::{Node, Step};
+pub use status::{Node, Step, WINDOW_BUSY};
 
 /// Run the node on `transport` until `shutdown` is set; returns the last status.
 pub fn run(
