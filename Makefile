@@ -51,7 +51,7 @@ bench: setup
 
 # What accuracy costs in time: the settings sweep the README's Pareto chart comes from (~10 min).
 sweep: setup
-	$(CARGO) run --release -p groupforward -- bench sweep --out node/doc/bench/sweep
+	$(CARGO) run -p groupforward -- bench sweep --rounds 2 --out node/doc/bench/sweep
 
 # Training (never part of CI): PyTorch and friends into train/.venv, and sim datasets for it.
 train-setup:

@@ -9,6 +9,9 @@ use std::time::{Duration, Instant};
 pub enum Stage {
     /// Decode, validate and sync one message (node loop).
     Ingest,
+    /// The semantic model on one keyframe, run when the keyframe arrives and the worker is idle
+    /// (outside every window's time: the window then only pools the cached features).
+    Keyframe,
     /// The reconstruction model's forward pass, inputs and outputs included.
     Model,
     /// Gaussians from the model's outputs (sensor depth in RGB-D).
@@ -17,7 +20,7 @@ pub enum Stage {
     Group,
     /// Flying pixels, opacity and spatial components.
     Clean,
-    /// The semantic model and the instance prototypes.
+    /// The semantic model on views without cached features, and the instance prototypes.
     Semantics,
     /// Window instances into the persistent map.
     Fusion,
@@ -32,8 +35,9 @@ pub enum Stage {
 }
 
 impl Stage {
-    pub const ALL: [Stage; 11] = [
+    pub const ALL: [Stage; 12] = [
         Stage::Ingest,
+        Stage::Keyframe,
         Stage::Model,
         Stage::Lift,
         Stage::Group,
@@ -66,6 +70,7 @@ impl Stage {
     pub fn name(self) -> &'static str {
         match self {
             Stage::Ingest => "ingest",
+            Stage::Keyframe => "keyframe",
             Stage::Model => "model",
             Stage::Lift => "lift",
             Stage::Group => "group",

@@ -42,6 +42,9 @@ pub struct WindowSection {
     pub max_interval_secs: f64,
     /// Keyframes kept for windows.
     pub max_keyframes: usize,
+    /// Compute each keyframe's semantic features when it arrives (while the worker would wait),
+    /// so a window pass only computes its newest view's; off: every view's in the pass.
+    pub features_ahead: bool,
 }
 
 impl Default for WindowSection {
@@ -52,6 +55,7 @@ impl Default for WindowSection {
             min_rotation_deg: 15.0,
             max_interval_secs: 1.0,
             max_keyframes: 32,
+            features_ahead: true,
         }
     }
 }
@@ -135,6 +139,8 @@ pub struct WindowOutput {
     pub invalid_depth_pixels: usize,
     /// Why the window built nothing (no valid depth in any view); `None` when it ran.
     pub skipped: Option<String>,
+    /// Views whose semantic features came computed ahead from the keyframe cache.
+    pub features_cached: usize,
     /// Time per stage of this pass.
     pub times: StageTimes,
 }
@@ -145,6 +151,132 @@ pub struct WindowOutput {
 pub fn window_pass(
     model: &mut ReconstructionModel,
     semantic: Option<&mut SemanticModel>,
+    frames: &[SyncedFrame],
+    grouping: &GroupingParams,
+) -> Result<WindowOutput, WindowError> {
+    let mut no_cache = FeatureCache::default();
+    pass_with_cache(
+        model,
+        semantic.map(|m| (m, &mut no_cache)),
+        frames,
+        grouping,
+    )
+}
+
+/// Which keyframe a cached feature map belongs to: its camera and stamp.
+type FrameKey = (String, i64);
+
+fn frame_key(frame: &SyncedFrame) -> FrameKey {
+    (frame.camera_name.clone(), frame.stamp_nanos)
+}
+
+/// Semantic features of keyframes, computed when each keyframe arrives (DESIGN §7: once per
+/// keyframe), waiting for the window that pools them. A window takes its views' features out, so
+/// at most the keyframes of the next window wait here; entries of windows that were dropped are
+/// pruned when a later window of the same camera runs, and the capacity bounds the rest (each
+/// entry is a full feature map: 4.7 MB for the shipped semantic model).
+#[derive(Debug)]
+pub struct FeatureCache {
+    entries: VecDeque<(FrameKey, DenseFeatures)>,
+    capacity: usize,
+}
+
+impl Default for FeatureCache {
+    fn default() -> Self {
+        Self::with_capacity(WindowSection::default().views)
+    }
+}
+
+impl FeatureCache {
+    pub fn with_capacity(capacity: usize) -> Self {
+        Self {
+            entries: VecDeque::new(),
+            capacity,
+        }
+    }
+
+    pub fn len(&self) -> usize {
+        self.entries.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.entries.is_empty()
+    }
+
+    fn contains(&self, key: &FrameKey) -> bool {
+        self.entries.iter().any(|(k, _)| k == key)
+    }
+
+    fn insert(&mut self, key: FrameKey, features: DenseFeatures) {
+        if self.capacity == 0 || self.contains(&key) {
+            return;
+        }
+        self.entries.push_back((key, features));
+        while self.entries.len() > self.capacity {
+            self.entries.pop_front();
+        }
+    }
+
+    /// Compute `frame`'s features with `semantic` and keep them for its window; the time it took,
+    /// `None` when they are cached already or the model failed (the window then computes them
+    /// and reports the failure).
+    pub fn prepare(
+        &mut self,
+        semantic: &mut SemanticModel,
+        frame: &SyncedFrame,
+    ) -> Option<std::time::Duration> {
+        let key = frame_key(frame);
+        if self.contains(&key) {
+            return None;
+        }
+        let started = std::time::Instant::now();
+        let features = semantic.features(&frame.rgb).ok()?;
+        self.insert(key, features);
+        Some(started.elapsed())
+    }
+
+    fn take(&mut self, key: &FrameKey) -> Option<DenseFeatures> {
+        let at = self.entries.iter().position(|(k, _)| k == key)?;
+        self.entries.remove(at).map(|(_, features)| features)
+    }
+
+    /// Drop what a window over `frames` made stale: its camera's entries up to its newest stamp
+    /// (windows do not overlap, so no later window takes them).
+    fn prune_after(&mut self, frames: &[SyncedFrame]) {
+        for frame in frames {
+            self.entries.retain(|((camera, stamp), _)| {
+                *camera != frame.camera_name || *stamp > frame.stamp_nanos
+            });
+        }
+    }
+}
+
+/// The semantic features of every view of a window: cached ones taken out of `cache`, the rest
+/// computed now. Returns how many were cached.
+fn window_features(
+    semantic: &mut SemanticModel,
+    cache: &mut FeatureCache,
+    frames: &[SyncedFrame],
+) -> (Result<Vec<DenseFeatures>, ModelError>, usize) {
+    let mut cached = 0;
+    let features = frames
+        .iter()
+        .map(|f| match cache.take(&frame_key(f)) {
+            Some(features) => {
+                cached += 1;
+                Ok(features)
+            }
+            None => semantic.features(&f.rgb),
+        })
+        .collect();
+    cache.prune_after(frames);
+    (features, cached)
+}
+
+/// [`window_pass`] with a cache of keyframe features computed ahead (see [`FeatureCache`]).
+pub fn pass_with_cache(
+    model: &mut ReconstructionModel,
+    semantic: Option<(&mut SemanticModel, &mut FeatureCache)>,
     frames: &[SyncedFrame],
     grouping: &GroupingParams,
 ) -> Result<WindowOutput, WindowError> {
@@ -179,6 +311,7 @@ pub fn window_pass(
                 "no valid depth in any of the {} views: nothing to lift",
                 frames.len()
             )),
+            features_cached: 0,
             times,
         });
     }
@@ -224,12 +357,11 @@ pub fn window_pass(
     times.0.push((Stage::Clean, clean_started.elapsed()));
     let semantics_started = std::time::Instant::now();
     let (mut instance_prototypes, mut semantics_error) = (Vec::new(), None);
-    if let Some(semantic) = semantic {
-        match frames
-            .iter()
-            .map(|f| semantic.features(&f.rgb))
-            .collect::<Result<Vec<DenseFeatures>, _>>()
-        {
+    let mut features_cached = 0;
+    if let Some((semantic, cache)) = semantic {
+        let (features, cached) = window_features(semantic, cache, frames);
+        features_cached = cached;
+        match features {
             Err(e) => semantics_error = Some(e.to_string()),
             Ok(features) => {
                 let size = (w, h);
@@ -292,6 +424,7 @@ pub fn window_pass(
         semantics_error,
         invalid_depth_pixels,
         skipped: None,
+        features_cached,
         times,
     })
 }
@@ -367,6 +500,8 @@ pub struct WindowModels {
     /// The text encoder that embedded the vocabulary, kept for referring queries' phrases.
     pub text_encoder: Option<TextEncoder>,
     pub grouping: GroupingParams,
+    /// Semantic features of keyframes computed on arrival ([`WindowModels::prepare`]).
+    pub features: FeatureCache,
 }
 
 impl WindowModels {
@@ -429,16 +564,73 @@ impl WindowModels {
             vocabulary,
             text_encoder,
             grouping: GroupingParams::default(),
+            features: FeatureCache::default(),
         })
+    }
+
+    /// Keep computed-ahead features for windows of `views` views.
+    pub fn set_views(&mut self, views: usize) {
+        if self.features.capacity != views {
+            self.features = FeatureCache::with_capacity(views);
+        }
+    }
+
+    /// Compute a keyframe's semantic features ahead of its window (when the worker would
+    /// otherwise wait), so the window pass only pools them. Returns the time it took, `None` when
+    /// there is no semantic model, the features are cached already, or the model failed (the
+    /// window then computes them, and reports the failure).
+    pub fn prepare(&mut self, frame: &SyncedFrame) -> Option<std::time::Duration> {
+        self.features.prepare(self.semantic.as_mut()?, frame)
     }
 
     /// One window pass over `frames`.
     pub fn pass(&mut self, frames: &[SyncedFrame]) -> Result<WindowOutput, WindowError> {
-        window_pass(
+        pass_with_cache(
             &mut self.reconstruction,
-            self.semantic.as_mut(),
+            self.semantic.as_mut().map(|m| (m, &mut self.features)),
             frames,
             &self.grouping,
         )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn features(value: f32) -> DenseFeatures {
+        DenseFeatures {
+            width: 1,
+            height: 1,
+            channels: 1,
+            data: vec![value],
+        }
+    }
+
+    fn key(camera: &str, stamp: i64) -> FrameKey {
+        (camera.to_owned(), stamp)
+    }
+
+    #[test]
+    fn the_feature_cache_keeps_the_newest_entries_and_hands_each_out_once() {
+        let mut cache = FeatureCache::with_capacity(2);
+        cache.insert(key("front", 1), features(1.0));
+        cache.insert(key("front", 2), features(2.0));
+        // A second insert of a key keeps the first features.
+        cache.insert(key("front", 2), features(9.0));
+        cache.insert(key("front", 3), features(3.0));
+        assert_eq!(cache.len(), 2, "capacity bounds the entries");
+        assert!(cache.take(&key("front", 1)).is_none(), "the oldest left");
+        assert_eq!(cache.take(&key("front", 2)), Some(features(2.0)));
+        assert!(cache.take(&key("front", 2)).is_none(), "handed out once");
+        assert!(
+            cache.take(&key("rear", 3)).is_none(),
+            "another camera's stamp"
+        );
+        assert_eq!(cache.take(&key("front", 3)), Some(features(3.0)));
+        assert!(cache.is_empty());
+        let mut off = FeatureCache::with_capacity(0);
+        off.insert(key("front", 1), features(1.0));
+        assert!(off.is_empty());
     }
 }

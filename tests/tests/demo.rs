@@ -26,6 +26,15 @@ fn the_demo_replays_a_sim_recorded_bag_into_the_node() {
     assert_eq!(report.status.tf_rejected, 1, "the NaN transform");
     assert_eq!(report.replayed_messages, report.recorded.messages);
     assert_eq!(report.objects.len(), 5);
+    // The worker computed keyframes' semantic features ahead of their windows, and the status
+    // says where the time went.
+    let stage = |name: &str| report.status.stages.iter().find(|s| s.stage == name);
+    assert!(
+        stage("keyframe").is_some_and(|s| s.count >= 1),
+        "{:?}",
+        report.status.stages
+    );
+    assert!(stage("window").is_some_and(|s| s.count >= 1 && s.p50_ms > 0.0));
     // The shipped reconstruction model ran: window passes produced persistent instances.
     assert!(!report.instances.is_empty());
     assert!(report

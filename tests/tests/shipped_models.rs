@@ -22,7 +22,7 @@ use groupforward::model::{init_runtime, SessionOptions};
 use groupforward::recon::camera::Camera;
 use groupforward::recon::metrics::adjusted_rand_index;
 use groupforward::recon::Rigid;
-use groupforward::window::window_pass;
+use groupforward::window::{pass_with_cache, window_pass, FeatureCache};
 use groupforward_sim::effects::Preset;
 use groupforward_sim::procedural::{generate, Split};
 use groupforward_sim::simulation::Simulation;
@@ -156,13 +156,19 @@ fn window_truth(sim: &Simulation) -> Vec<Vec<u16>> {
         .collect()
 }
 
-#[test]
-fn a_window_pass_gives_instances_prototypes_that_name_them() {
+/// The shipped RGB-D reconstruction model and the semantic model.
+fn rgbd_and_semantic_models() -> (ReconstructionModel, SemanticModel) {
     init_runtime(None).unwrap_or_else(|e| panic!("{e}"));
     let options = SessionOptions::default();
-    let mut reconstruction =
-        ReconstructionModel::load(&models().join("groupforward-mini-rgbd.toml"), &options).unwrap();
-    let mut semantic = SemanticModel::load(&models().join("semantic-mini.toml"), &options).unwrap();
+    (
+        ReconstructionModel::load(&models().join("groupforward-mini-rgbd.toml"), &options).unwrap(),
+        SemanticModel::load(&models().join("semantic-mini.toml"), &options).unwrap(),
+    )
+}
+
+#[test]
+fn a_window_pass_gives_instances_prototypes_that_name_them() {
+    let (mut reconstruction, mut semantic) = rgbd_and_semantic_models();
     let vocabulary = vocabulary();
     let sim = Simulation::new(generate(Split::Val, 0).unwrap()).unwrap();
     let frames = window_frames(&sim);
@@ -188,6 +194,43 @@ fn a_window_pass_gives_instances_prototypes_that_name_them() {
         vocabulary.hypotheses(&biggest.prototype, 1)[0].0,
         OTHER_PHRASE
     );
+}
+
+#[test]
+fn features_computed_ahead_give_the_window_the_same_instances_and_prototypes() {
+    let (mut reconstruction, mut semantic) = rgbd_and_semantic_models();
+    let sim = Simulation::new(generate(Split::Val, 2).unwrap()).unwrap();
+    let frames = window_frames(&sim);
+    let grouping = GroupingParams::default();
+    let in_window =
+        window_pass(&mut reconstruction, Some(&mut semantic), &frames, &grouping).unwrap();
+    assert_eq!(in_window.features_cached, 0);
+    // The node computes every keyframe's features on arrival but the newest, which completes the
+    // window; a stale entry of an older keyframe waits too.
+    let mut cache = FeatureCache::with_capacity(8);
+    let mut stale = frames[0].clone();
+    stale.stamp_nanos -= 1_000_000;
+    for frame in std::iter::once(&stale).chain(&frames[..frames.len() - 1]) {
+        assert!(cache.prepare(&mut semantic, frame).is_some());
+    }
+    assert!(
+        cache.prepare(&mut semantic, &frames[0]).is_none(),
+        "computed once per keyframe"
+    );
+    let ahead = pass_with_cache(
+        &mut reconstruction,
+        Some((&mut semantic, &mut cache)),
+        &frames,
+        &grouping,
+    )
+    .unwrap();
+    assert_eq!(ahead.features_cached, frames.len() - 1);
+    assert!(
+        cache.is_empty(),
+        "the window took its features and dropped the stale one"
+    );
+    assert!(!ahead.instances.is_empty());
+    assert_eq!(ahead.instances, in_window.instances);
 }
 
 /// Depth abs-rel of `predicted` (views of `size` at the model resolution, one after another) against

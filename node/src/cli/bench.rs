@@ -88,10 +88,13 @@ pub enum BenchCommand {
         #[arg(long, default_value = "benchmark")]
         split: String,
         /// Scenes per setting (held out from every choice of settings: 10-29).
-        #[arg(long, default_value_t = 5)]
+        #[arg(long, default_value_t = 10)]
         scenes: u64,
         #[arg(long, default_value_t = 10)]
         first_index: u64,
+        /// Times every setting runs, the settings taking turns (timings pooled).
+        #[arg(long, default_value_t = 1)]
+        rounds: usize,
         #[arg(long, default_value = "target/bench/sweep")]
         out: PathBuf,
     },
@@ -317,11 +320,12 @@ pub fn run(command: BenchCommand) -> Result<()> {
             split,
             scenes,
             first_index,
+            rounds,
             out,
         } => {
             let scenes = if quick { 1 } else { scenes };
             let files = crate::eval::split_scenes(&split, first_index, scenes)?;
-            crate::bench_sweep::sweep(&files, quick, &out)
+            crate::bench_sweep::sweep(&files, quick, rounds, &out)
         }
         BenchCommand::Dropout {
             levels,

@@ -24,6 +24,10 @@ pub struct Setting {
     pub min_cluster_size: usize,
     /// Reconstruction model manifest, relative to `models/`.
     pub model: &'static str,
+    /// ONNX Runtime's idle threads spin (`models.intra_op_spinning`).
+    pub spinning: bool,
+    /// Keyframes' semantic features computed on arrival (`window.features_ahead`).
+    pub features_ahead: bool,
 }
 
 const RGBD: &str = "groupforward-mini-rgbd.toml";
@@ -38,6 +42,8 @@ impl Setting {
             max_cluster_points: grouping.max_cluster_points,
             min_cluster_size: grouping.hdbscan.min_cluster_size,
             model: RGBD,
+            spinning: groupforward::model::ModelsSection::default().intra_op_spinning,
+            features_ahead: groupforward::window::WindowSection::default().features_ahead,
         }
     }
 
@@ -62,11 +68,23 @@ pub fn settings(quick: bool) -> Vec<Setting> {
         Setting::with("views_8", |s| s.views = 8),
         Setting::with("views_16", |s| s.views = 16),
         Setting::with("views_24", |s| s.views = 24),
+        Setting::with("subsample_12k", |s| s.max_cluster_points = 12_000),
         Setting::with("subsample_8k", |s| s.max_cluster_points = 8_000),
+        Setting::with("subsample_8k_min_15", |s| {
+            s.max_cluster_points = 8_000;
+            s.min_cluster_size = 15;
+        }),
         Setting::with("subsample_40k", |s| s.max_cluster_points = 40_000),
         Setting::with("min_cluster_15", |s| s.min_cluster_size = 15),
         Setting::with("min_cluster_60", |s| s.min_cluster_size = 60),
         Setting::with("rgb_model", |s| s.model = RGB),
+        // The shipped default before its speed work (2026-11-25), side by side with it.
+        Setting::with("ort_spinning", |s| s.spinning = true),
+        Setting::with("features_in_window", |s| s.features_ahead = false),
+        Setting::with("previous_default", |s| {
+            s.spinning = true;
+            s.features_ahead = false;
+        }),
     ]);
     all
 }
@@ -88,7 +106,10 @@ impl Point {
     }
 }
 
-pub fn sweep(files: &[SceneFile], quick: bool, out: &Path) -> Result<()> {
+/// Run every setting on `files`, `rounds` times in turn (a round replays every setting once:
+/// timings of all rounds are pooled, so drift of the machine falls on every setting alike; the
+/// maps are the same each round and are scored from the first).
+pub fn sweep(files: &[SceneFile], quick: bool, rounds: usize, out: &Path) -> Result<()> {
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let settings = settings(quick);
     // Every setting replays the same recordings (rendering once, not once per setting).
@@ -100,11 +121,16 @@ pub fn sweep(files: &[SceneFile], quick: bool, out: &Path) -> Result<()> {
         bar.inc(1);
     }
     bar.finish_and_clear();
-    let mut points = Vec::new();
-    let mut loaded: Option<(&'static str, WindowModels)> = None;
-    for setting in &settings {
+    let mut points: Vec<Point> = Vec::new();
+    let mut loaded: Option<((&'static str, bool), WindowModels)> = None;
+    let runs =
+        (0..rounds.max(1)).flat_map(|round| settings.iter().enumerate().map(move |s| (round, s)));
+    for (round, (index, setting)) in runs {
         let mut config = eval_config(Some(shipped_models().join(setting.model)));
         config.window.views = setting.views;
+        config.window.features_ahead = setting.features_ahead;
+        config.models.intra_op_spinning = setting.spinning;
+        let key = (setting.model, setting.spinning);
         // More views than the default's four see the same stretch of the trajectory more densely
         // (keyframes closer together), so windows span what a default window spans and short
         // scenes still fill them.
@@ -117,18 +143,27 @@ pub fn sweep(files: &[SceneFile], quick: bool, out: &Path) -> Result<()> {
         }
         if loaded
             .as_ref()
-            .is_none_or(|(model, _)| *model != setting.model)
+            .is_none_or(|(loaded_key, _)| *loaded_key != key)
         {
-            let models = WindowModels::load(&config.models, &config.semantics)
+            let mut models = WindowModels::load(&config.models, &config.semantics)
                 .context("loading the models (`make setup` installs ONNX Runtime)")?;
-            loaded = Some((setting.model, models));
+            // A fresh session's first passes allocate and plan: warm up untimed, so the setting
+            // measured right after a load is not the slower for it.
+            if let Some(first) = recorded.first() {
+                replay_scene(first, &config, &mut models)
+                    .with_context(|| format!("{}: warm-up on {}", setting.name, first.scene))?;
+            }
+            loaded = Some((key, models));
         }
         let Some((_, models)) = loaded.as_mut() else {
             unreachable!("loaded above")
         };
         models.grouping.max_cluster_points = setting.max_cluster_points;
         models.grouping.hdbscan.min_cluster_size = setting.min_cluster_size;
-        let bar = progress_bar(recorded.len() as u64, &setting.name);
+        let bar = progress_bar(
+            recorded.len() as u64,
+            &format!("{} (round {})", setting.name, round + 1),
+        );
         let mut scored = Scored::default();
         for scene in &recorded {
             bar.set_message(scene.scene.clone());
@@ -138,6 +173,11 @@ pub fn sweep(files: &[SceneFile], quick: bool, out: &Path) -> Result<()> {
             bar.inc(1);
         }
         bar.finish_and_clear();
+        if let Some(point) = points.get_mut(index) {
+            point.scored.window_times.extend(scored.window_times);
+            point.stages = summarise(&point.scored.window_times);
+            continue;
+        }
         let stages = summarise(&scored.window_times);
         let point = Point {
             setting: setting.clone(),
@@ -146,7 +186,7 @@ pub fn sweep(files: &[SceneFile], quick: bool, out: &Path) -> Result<()> {
         };
         let s = point.scored.total.summary();
         eprintln!(
-            "{:<15} window p50 {:>6.0} ms   recall@0.25 {:>5.1}%   precision {:>5.1}%",
+            "{:<20} window p50 {:>6.0} ms   recall@0.25 {:>5.1}%   precision {:>5.1}%",
             setting.name,
             point.window_p50(),
             100.0 * s.recall_at_25,
@@ -155,8 +195,9 @@ pub fn sweep(files: &[SceneFile], quick: bool, out: &Path) -> Result<()> {
         points.push(point);
     }
     let threads = rayon::current_num_threads();
-    std::fs::write(out.join("sweep.csv"), csv(&points))?;
-    let md = markdown(&points, files.len(), threads, quick);
+    let rounds = rounds.max(1);
+    std::fs::write(out.join("sweep.csv"), csv(&points, rounds))?;
+    let md = markdown(&points, files.len(), threads, quick, rounds);
     std::fs::write(out.join("sweep.md"), &md)?;
     pareto_chart(&out.join("pareto.svg"), &points)?;
     print!("{md}");
@@ -164,9 +205,9 @@ pub fn sweep(files: &[SceneFile], quick: bool, out: &Path) -> Result<()> {
     Ok(())
 }
 
-fn csv(points: &[Point]) -> String {
+fn csv(points: &[Point], rounds: usize) -> String {
     let mut out = String::from(
-        "setting,views,max_cluster_points,min_cluster_size,model,windows,window_p50_ms,window_p99_ms",
+        "setting,views,max_cluster_points,min_cluster_size,model,intra_op_spinning,features_ahead,windows,window_p50_ms,window_p99_ms",
     );
     for stage in Stage::WINDOW_PASS {
         out.push_str(&format!(",{}_p50_ms", stage.name()));
@@ -176,13 +217,15 @@ fn csv(points: &[Point]) -> String {
         let s = p.scored.total.summary();
         let window = p.stage(Stage::Window);
         out.push_str(&format!(
-            "{},{},{},{},{},{},{:.2},{:.2}",
+            "{},{},{},{},{},{},{},{},{:.2},{:.2}",
             p.setting.name,
             p.setting.views,
             p.setting.max_cluster_points,
             p.setting.min_cluster_size,
             p.setting.model.trim_end_matches(".toml"),
-            window.map_or(0, |w| w.count),
+            p.setting.spinning,
+            p.setting.features_ahead,
+            window.map_or(0, |w| w.count / rounds as u64),
             window.map_or(f64::NAN, |w| w.p50_ms),
             window.map_or(f64::NAN, |w| w.p99_ms),
         ));
@@ -227,10 +270,10 @@ fn pareto_front(points: &[Point]) -> Vec<usize> {
     front
 }
 
-fn markdown(points: &[Point], scenes: usize, threads: usize, quick: bool) -> String {
+fn markdown(points: &[Point], scenes: usize, threads: usize, quick: bool, rounds: usize) -> String {
     let front = pareto_front(points);
     let mut md = format!(
-        "Accuracy against time: each setting replays the same {scenes} recorded benchmark scene(s) through the node's stages (every window, as `eval map` does) and scores the final map. Window = model pass to map update, {threads} threads; p50 / p99 over all windows of the run. Settings with more than 4 views take keyframes proportionally closer together (a window spans the same stretch of trajectory, seen by more views). Pareto-optimal settings (no other is both faster and more accurate on recall@0.25) are marked *.\n\n| setting | views | HDBSCAN subsample | min cluster | model | windows | window p50 / p99 (ms) | model | group | semantics | fusion | recall@0.25 | recall@0.5 | precision | duplicates | names | id switches / 100 |\n| --- | ---: | ---: | ---: | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |\n"
+        "Accuracy against time: each setting replays the same {scenes} recorded benchmark scene(s) through the node's stages (every window, as `eval map` does) and scores the final map. Window = model pass to map update, {threads} threads; p50 / p99 over all windows of {rounds} round(s), the settings taking turns; windows = per round. Settings with more than 4 views take keyframes proportionally closer together (a window spans the same stretch of trajectory, seen by more views). Pareto-optimal settings (no other is both faster and more accurate on recall@0.25) are marked *.\n\n| setting | views | HDBSCAN subsample | min cluster | model | windows | window p50 / p99 (ms) | model | group | semantics | fusion | recall@0.25 | recall@0.5 | precision | duplicates | names | id switches / 100 |\n| --- | ---: | ---: | ---: | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |\n"
     );
     for (i, p) in points.iter().enumerate() {
         let s = p.scored.total.summary();
@@ -247,7 +290,7 @@ fn markdown(points: &[Point], scenes: usize, threads: usize, quick: bool) -> Str
             p.setting.max_cluster_points,
             p.setting.min_cluster_size,
             p.setting.model.trim_end_matches(".toml"),
-            window.map_or(0, |w| w.count),
+            window.map_or(0, |w| w.count / rounds as u64),
             window.map_or("no window".to_owned(), |w| format!(
                 "{:.0} / {:.0}",
                 w.p50_ms, w.p99_ms
@@ -265,8 +308,13 @@ fn markdown(points: &[Point], scenes: usize, threads: usize, quick: bool) -> Str
         ));
     }
     md.push_str(&format!(
-        "\nReproduce: `groupforward bench sweep{} --out DIR` (or `make sweep`).\n",
-        if quick { " --quick" } else { "" }
+        "\nReproduce: `groupforward bench sweep{}{} --out DIR` (or `make sweep`).\n",
+        if quick { " --quick" } else { "" },
+        if rounds > 1 {
+            format!(" --rounds {rounds}")
+        } else {
+            String::new()
+        }
     ));
     md
 }

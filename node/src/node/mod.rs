@@ -99,24 +99,28 @@ pub fn run(
         node.record_dropped(&dropped);
         if let Some((route, payload)) = item {
             let step = node.step(route, &payload);
-            if let Some(sender) = &windows {
-                for window in step.windows {
-                    // The worker is busy with the previous window: drop this one (counted) rather
-                    // than stall ingest. A worker without a model has exited.
-                    match sender.try_send(window) {
-                        Ok(()) => {}
-                        Err(std::sync::mpsc::TrySendError::Full(_)) => {
+            if let Some(inbox) = &windows {
+                let handed = step
+                    .keyframes
+                    .into_iter()
+                    .filter(|_| config.window.features_ahead)
+                    .map(|frame| inbox.send_keyframe(frame))
+                    .chain(step.windows.into_iter().map(|window| {
+                        // The worker is busy with the previous window: drop this one (counted)
+                        // rather than stall ingest.
+                        let sent = inbox.send_window(window);
+                        if sent == Err(worker::NotSent::Busy) {
                             node.windows_dropped += 1;
                             tracing::debug!(
                                 dropped = node.windows_dropped,
                                 "window pass busy; window dropped"
                             );
                         }
-                        Err(std::sync::mpsc::TrySendError::Disconnected(_)) => {
-                            model_gone = true;
-                        }
-                    }
-                }
+                        sent
+                    }))
+                    .collect::<Vec<_>>();
+                // A worker without a model has exited.
+                model_gone = handed.contains(&Err(worker::NotSent::Gone));
             }
         }
         if model_gone {

@@ -21,6 +21,9 @@ use crate::window::{Keyframes, WindowSection};
 pub struct Step {
     /// Frames that completed (colour, camera info, depth and pose all there).
     pub synced: usize,
+    /// Frames kept as keyframes, oldest first (their semantic features can be computed before
+    /// their window is complete).
+    pub keyframes: Vec<SyncedFrame>,
     /// Keyframe windows that became complete, oldest first: each is one model pass.
     pub windows: Vec<Vec<SyncedFrame>>,
 }
@@ -65,7 +68,7 @@ impl Node {
         let frames = self.ingest.handle(route, payload);
         let mut step = Step {
             synced: frames.len(),
-            windows: Vec::new(),
+            ..Step::default()
         };
         for frame in frames {
             let store = self
@@ -73,7 +76,11 @@ impl Node {
                 .entry(frame.camera_name.clone())
                 .or_insert_with(|| Keyframes::new(self.window.clone()));
             if store.offer(&frame) {
-                step.windows.extend(store.take_window());
+                match store.take_window() {
+                    // The window's newest frame is computed in the window itself.
+                    Some(window) => step.windows.push(window),
+                    None => step.keyframes.push(frame),
+                }
             }
         }
         self.stages.record(Stage::Ingest, started.elapsed());

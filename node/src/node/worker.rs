@@ -1,7 +1,9 @@
-//! The window worker: a thread that loads the models, runs a window pass for each window the
-//! node loop hands it, and fuses the window's instances into the shared map.
+//! The window worker: a thread that loads the models, computes each keyframe's semantic features
+//! when it is otherwise idle, runs a window pass for each window the node loop hands it, and fuses
+//! the window's instances into the shared map.
 
-use std::sync::mpsc::{sync_channel, SyncSender};
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::mpsc::{sync_channel, Receiver, SyncSender, TrySendError};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 
@@ -12,13 +14,75 @@ use crate::outputs::ViewSource;
 use crate::timing::Stage;
 use crate::window::WindowModels;
 
+/// Keyframes waiting for their features at most (more are left to their window pass).
+const KEYFRAMES_WAITING: usize = 24;
+
+enum Work {
+    Keyframe(Box<SyncedFrame>),
+    Window(Vec<SyncedFrame>),
+}
+
+/// What the node loop hands the worker.
+#[derive(Debug)]
+pub(super) struct WorkerInbox {
+    sender: SyncSender<Work>,
+    windows_waiting: Arc<AtomicUsize>,
+    keyframes_waiting: Arc<AtomicUsize>,
+}
+
+/// Why a window was not handed over.
+#[derive(Debug, PartialEq, Eq)]
+pub(super) enum NotSent {
+    /// A window is already waiting behind the one being processed.
+    Busy,
+    /// The worker has exited (its model failed to load).
+    Gone,
+}
+
+impl WorkerInbox {
+    /// Hand over a window; one waits at most (behind the one being processed), so a busy worker
+    /// means the window is dropped rather than ingest stalling.
+    pub(super) fn send_window(&self, window: Vec<SyncedFrame>) -> Result<(), NotSent> {
+        if self.windows_waiting.load(Ordering::Acquire) >= 1 {
+            return Err(NotSent::Busy);
+        }
+        self.windows_waiting.fetch_add(1, Ordering::AcqRel);
+        self.sender.try_send(Work::Window(window)).map_err(|e| {
+            self.windows_waiting.fetch_sub(1, Ordering::AcqRel);
+            match e {
+                TrySendError::Full(_) => NotSent::Busy,
+                TrySendError::Disconnected(_) => NotSent::Gone,
+            }
+        })
+    }
+
+    /// Hand over a keyframe for its features ahead of its window; skipped (the window computes
+    /// them) when too many wait already.
+    pub(super) fn send_keyframe(&self, frame: SyncedFrame) -> Result<(), NotSent> {
+        if self.keyframes_waiting.load(Ordering::Acquire) >= KEYFRAMES_WAITING {
+            return Ok(());
+        }
+        self.keyframes_waiting.fetch_add(1, Ordering::AcqRel);
+        match self.sender.try_send(Work::Keyframe(Box::new(frame))) {
+            Ok(()) => Ok(()),
+            Err(e) => {
+                self.keyframes_waiting.fetch_sub(1, Ordering::AcqRel);
+                match e {
+                    TrySendError::Full(_) => Ok(()),
+                    TrySendError::Disconnected(_) => Err(NotSent::Gone),
+                }
+            }
+        }
+    }
+}
+
 /// Start the thread that loads the models, runs window passes and fuses their instances into the
 /// map. `None` when no reconstruction model is configured or its file is missing (logged; the node
 /// keeps serving).
 pub(super) fn start_window_worker(
     config: &Config,
     shared: &Arc<Mutex<Shared>>,
-) -> (Option<SyncSender<Vec<SyncedFrame>>>, Option<JoinHandle<()>>) {
+) -> (Option<WorkerInbox>, Option<JoinHandle<()>>) {
     let Some(manifest) = config.models.reconstruction.as_ref() else {
         return (None, None);
     };
@@ -29,9 +93,20 @@ pub(super) fn start_window_worker(
         );
         return (None, None);
     }
-    let (sender, receiver) = sync_channel::<Vec<SyncedFrame>>(1);
+    // Room for every waiting keyframe and the one waiting window: the counters bound the rest.
+    let (sender, receiver) = sync_channel::<Work>(KEYFRAMES_WAITING + 1);
+    let inbox = WorkerInbox {
+        sender,
+        windows_waiting: Arc::new(AtomicUsize::new(0)),
+        keyframes_waiting: Arc::new(AtomicUsize::new(0)),
+    };
+    let (windows_waiting, keyframes_waiting) = (
+        inbox.windows_waiting.clone(),
+        inbox.keyframes_waiting.clone(),
+    );
     let shared = shared.clone();
     let (models, semantics) = (config.models.clone(), config.semantics.clone());
+    let views = config.window.views.clamp(2, 24);
     let worker = std::thread::spawn(move || {
         // Loaded here, not on the node loop: ingest and services run while the models load.
         let mut models = match WindowModels::load(&models, &semantics) {
@@ -43,12 +118,19 @@ pub(super) fn start_window_worker(
                 return;
             }
         };
+        models.set_views(views);
         if let Ok(mut s) = shared.lock() {
             s.vocabulary = models.vocabulary.clone();
             s.text_encoder = models.text_encoder.take().map(|e| Arc::new(Mutex::new(e)));
             s.refresh_instances();
         }
-        while let Ok(frames) = receiver.recv() {
+        while let Some(frames) = next_window(
+            &receiver,
+            &windows_waiting,
+            &keyframes_waiting,
+            &mut models,
+            &shared,
+        ) {
             let stamp = frames.last().map_or(0, |f| f.stamp_nanos);
             match models.pass(&frames) {
                 Ok(output) => {
@@ -100,5 +182,100 @@ pub(super) fn start_window_worker(
             }
         }
     });
-    (Some(sender), Some(worker))
+    (Some(inbox), Some(worker))
+}
+
+/// Wait for the next window, computing the features of the keyframes that arrive before it;
+/// `None` when the node loop has gone.
+fn next_window(
+    receiver: &Receiver<Work>,
+    windows_waiting: &AtomicUsize,
+    keyframes_waiting: &AtomicUsize,
+    models: &mut WindowModels,
+    shared: &Mutex<Shared>,
+) -> Option<Vec<SyncedFrame>> {
+    loop {
+        match receiver.recv().ok()? {
+            Work::Window(frames) => {
+                windows_waiting.fetch_sub(1, Ordering::AcqRel);
+                return Some(frames);
+            }
+            Work::Keyframe(frame) => {
+                keyframes_waiting.fetch_sub(1, Ordering::AcqRel);
+                if let Some(took) = models.prepare(&frame) {
+                    if let Ok(mut s) = shared.lock() {
+                        s.stages.record(Stage::Keyframe, took);
+                    }
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::frame::RgbImage;
+    use crate::recon::camera::Camera;
+    use crate::recon::Rigid;
+
+    fn frame(stamp_nanos: i64) -> SyncedFrame {
+        SyncedFrame {
+            camera_name: "front".into(),
+            stamp_nanos,
+            frame_id: "camera".into(),
+            rgb: RgbImage {
+                width: 1,
+                height: 1,
+                data: vec![0; 3],
+            },
+            depth: None,
+            camera: Camera::from_fov(1, 1, 1.0).unwrap_or_else(|e| panic!("{e}")),
+            world_from_camera: Rigid::default(),
+        }
+    }
+
+    fn inbox() -> (WorkerInbox, Receiver<Work>) {
+        let (sender, receiver) = sync_channel::<Work>(KEYFRAMES_WAITING + 1);
+        let inbox = WorkerInbox {
+            sender,
+            windows_waiting: Arc::new(AtomicUsize::new(0)),
+            keyframes_waiting: Arc::new(AtomicUsize::new(0)),
+        };
+        (inbox, receiver)
+    }
+
+    #[test]
+    fn one_window_waits_and_keyframes_never_take_its_place() {
+        let (inbox, receiver) = inbox();
+        for stamp in 0..(KEYFRAMES_WAITING as i64 + 5) {
+            assert_eq!(inbox.send_keyframe(frame(stamp)), Ok(()));
+        }
+        assert_eq!(
+            inbox.keyframes_waiting.load(Ordering::Acquire),
+            KEYFRAMES_WAITING,
+            "keyframes beyond the bound are left to their window"
+        );
+        assert_eq!(inbox.send_window(vec![frame(100)]), Ok(()));
+        assert_eq!(inbox.send_window(vec![frame(200)]), Err(NotSent::Busy));
+        // The worker takes the keyframes, then the window: a new window may wait again.
+        let mut keyframes = 0;
+        loop {
+            match receiver.recv().unwrap_or_else(|e| panic!("{e}")) {
+                Work::Keyframe(_) => {
+                    keyframes += 1;
+                    inbox.keyframes_waiting.fetch_sub(1, Ordering::AcqRel);
+                }
+                Work::Window(frames) => {
+                    assert_eq!(frames[0].stamp_nanos, 100);
+                    inbox.windows_waiting.fetch_sub(1, Ordering::AcqRel);
+                    break;
+                }
+            }
+        }
+        assert_eq!(keyframes, KEYFRAMES_WAITING);
+        assert_eq!(inbox.send_window(vec![frame(300)]), Ok(()));
+        drop(receiver);
+        assert_eq!(inbox.send_keyframe(frame(400)), Err(NotSent::Gone));
+    }
 }
