@@ -141,6 +141,12 @@ pub struct WindowOutput {
     pub skipped: Option<String>,
     /// Views whose semantic features came computed ahead from the keyframe cache.
     pub features_cached: usize,
+    /// The model's own depth per model pixel (view-major), before RGB-D mode replaces it by the
+    /// sensor's: what `eval window` scores.
+    pub model_depth: Vec<f32>,
+    /// Per model pixel (view-major): the index of the instance in `instances` its Gaussian went
+    /// to, or -1 (not lifted, noise, or cleaned out).
+    pub pixel_instances: Vec<i32>,
     /// Time per stage of this pass.
     pub times: StageTimes,
 }
@@ -283,6 +289,7 @@ pub fn pass_with_cache(
     let mut times = StageTimes::default();
     let views: Vec<View<'_>> = frames.iter().map(View::from).collect();
     let mut prediction = times.time(Stage::Model, || model.predict(&views))?;
+    let model_depth = prediction.depth.clone();
     let lifted = times.time(Stage::Lift, || {
         // RGB-D: geometry from the depth camera (the eval's recall at IoU 0.5 doubles against
         // the model's own depth), instances from the model.
@@ -312,6 +319,8 @@ pub fn pass_with_cache(
                 frames.len()
             )),
             features_cached: 0,
+            model_depth,
+            pixel_instances: Vec::new(),
             times,
         });
     }
@@ -394,6 +403,21 @@ pub fn pass_with_cache(
         );
     }
     let (w, h) = (prediction.width, prediction.height);
+    // Clusters left empty are dropped: instance indices count the kept ones.
+    let mut instance_of_cluster = vec![-1i32; per_instance.len()];
+    let mut kept = 0;
+    for (k, g) in per_instance.iter().enumerate() {
+        if !g.is_empty() {
+            instance_of_cluster[k] = kept;
+            kept += 1;
+        }
+    }
+    let mut pixel_instances = vec![-1i32; prediction.depth.len()];
+    for (&pixel, &label) in pixels.iter().zip(&labels) {
+        if let (Some(slot), Ok(k)) = (pixel_instances.get_mut(pixel), usize::try_from(label)) {
+            *slot = instance_of_cluster[k];
+        }
+    }
     let instances = per_instance
         .into_iter()
         .enumerate()
@@ -425,6 +449,8 @@ pub fn pass_with_cache(
         invalid_depth_pixels,
         skipped: None,
         features_cached,
+        model_depth,
+        pixel_instances,
         times,
     })
 }

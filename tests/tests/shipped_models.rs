@@ -8,7 +8,8 @@
 
 use std::path::Path;
 
-use groupforward::frame::{DepthImage, RgbImage, SyncedFrame};
+use groupforward::eval::window::synced_frame;
+use groupforward::frame::{RgbImage, SyncedFrame};
 use groupforward::group::semantics::Vocabulary;
 use groupforward::group::semantics::{default_vocabulary, OTHER_PHRASE};
 use groupforward::group::{group, GroupingParams};
@@ -19,7 +20,6 @@ use groupforward::model::reconstruction::{
 use groupforward::model::semantic::SemanticModel;
 use groupforward::model::text::TextEncoder;
 use groupforward::model::{init_runtime, SessionOptions};
-use groupforward::recon::camera::Camera;
 use groupforward::recon::metrics::adjusted_rand_index;
 use groupforward::recon::Rigid;
 use groupforward::window::{pass_with_cache, window_pass, FeatureCache};
@@ -125,25 +125,7 @@ fn window_frames(sim: &Simulation) -> Vec<SyncedFrame> {
         .into_iter()
         .map(|index| {
             let frame = sim.frame(index);
-            let view = &frame.views[0];
-            let p = view.pinhole;
-            SyncedFrame {
-                camera_name: "front".into(),
-                stamp_nanos: (frame.time_secs * 1e9) as i64,
-                frame_id: "camera_color_optical_frame".into(),
-                rgb: RgbImage {
-                    width: p.width,
-                    height: p.height,
-                    data: view.sensor_rgb().to_vec(),
-                },
-                depth: Some(DepthImage {
-                    width: p.width,
-                    height: p.height,
-                    metres: view.sensor_depth().to_vec(),
-                }),
-                camera: Camera::pinhole(p.width, p.height, p.fx, p.fy, p.cx, p.cy).unwrap(),
-                world_from_camera: Rigid::new(view.rotation, view.position),
-            }
+            synced_frame(&frame.views[0], (frame.time_secs * 1e9) as i64).unwrap()
         })
         .collect()
 }

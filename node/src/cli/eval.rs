@@ -71,6 +71,33 @@ pub enum EvalCommand {
         #[arg(long, default_value = "target/eval/map")]
         out: PathBuf,
     },
+    /// Single windows as a feed-forward pass is scored: depth abs-rel and δ<1.25 of the model's
+    /// depth, instance ARI, semantic pixel accuracy and mIoU in the source views, and PSNR, SSIM
+    /// and semantic labels in a novel view rendered from the window's instances (LPIPS is not
+    /// computed: it needs pretrained weights).
+    Window {
+        #[command(flatten)]
+        scenes: ScenesArgs,
+        /// Reconstruction model manifest (default: the shipped RGB-D model).
+        #[arg(long)]
+        model: Option<PathBuf>,
+        /// Windows per scene, spread over its trajectory.
+        #[arg(long, default_value_t = 2)]
+        windows: usize,
+        #[arg(long, default_value = "target/eval/window")]
+        out: PathBuf,
+    },
+    /// Every evaluation on the same scenes (`window`, `map`, `refer`, each into DIR/<name>), then
+    /// one table of their headline figures and DIR/summary.json.
+    All {
+        #[command(flatten)]
+        scenes: ScenesArgs,
+        /// Windows per scene for `window`.
+        #[arg(long, default_value_t = 2)]
+        windows: usize,
+        #[arg(long, default_value = "target/eval/all")]
+        out: PathBuf,
+    },
     /// Referring: each scene replayed through the node's stages, then the scene's generated
     /// expressions (or `--expressions`) asked through the `Refer` service's handler; selection
     /// accuracy, top-K recall, Acc@0.25 / 0.5, by relation, easy / hard, view-dependent or not,
@@ -102,6 +129,20 @@ pub fn run(command: EvalCommand) -> Result<()> {
     match command {
         EvalCommand::Map { scenes, model, out } => {
             eval_map(&scenes.files()?, model, scenes.effects.as_deref(), &out)
+        }
+        EvalCommand::Window {
+            scenes,
+            model,
+            windows,
+            out,
+        } => crate::eval_window::eval_window(&scenes.files()?, model, windows, &out),
+        EvalCommand::All {
+            scenes,
+            windows,
+            out,
+        } => {
+            std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
+            crate::eval_all::eval_all(&scenes.files()?, scenes.effects.as_deref(), windows, &out)
         }
         EvalCommand::Refer {
             scenes,
@@ -175,7 +216,7 @@ pub fn shipped_models() -> PathBuf {
 }
 
 /// SHA-256 of a model's ONNX file, through its manifest.
-fn model_hash(manifest: &Path) -> Result<String> {
+pub fn model_hash(manifest: &Path) -> Result<String> {
     let loaded = groupforward::model::manifest::Manifest::load(manifest)?;
     let bytes = std::fs::read(loaded.model_path())
         .with_context(|| format!("reading {}", loaded.model_path().display()))?;
@@ -246,7 +287,7 @@ pub fn invalid_fraction(depth: &DepthValidity) -> f64 {
     depth.invalid() as f64 / depth.pixels.max(1) as f64
 }
 
-fn eval_map(
+pub fn eval_map(
     files: &[SceneFile],
     model: Option<PathBuf>,
     effects: Option<&str>,

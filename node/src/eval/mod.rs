@@ -5,8 +5,11 @@
 //!   fusion), every window processed, ground truth kept beside the pipeline;
 //! - [`score`]: the final map and each window's instances scored against the objects;
 //! - [`refer`]: the scene's referring expressions asked through the `Refer` service's handler,
-//!   answers matched to the objects they name.
+//!   answers matched to the objects they name;
+//! - [`window`]: single windows scored as a feed-forward pass is (depth, ARI, semantics, novel
+//!   views).
 
 pub mod refer;
 pub mod run;
 pub mod score;
+pub mod window;
