@@ -97,3 +97,34 @@ fn eval_all_runs_every_evaluation_on_the_same_scenes_and_gathers_their_figures()
     );
     assert!(!table.contains("NaN"), "{table}");
 }
+
+#[test]
+fn the_baseline_without_instances_answers_the_same_single_target_expressions() {
+    let (out, run) = eval(&["refer", "--baseline"]);
+    let stdout = String::from_utf8_lossy(&run.stdout);
+    assert!(stdout.contains("Without instances"), "{stdout}");
+    let csv = std::fs::read_to_string(out.path().join("baseline.csv")).expect("baseline.csv");
+    let rows: Vec<&str> = csv.lines().skip(1).collect();
+    let asked = std::fs::read_to_string(out.path().join("expressions.csv")).expect("expressions");
+    assert!(
+        !rows.is_empty() && rows.len() < asked.lines().count(),
+        "single-target ones only"
+    );
+    let mut baseline_found = 0;
+    for row in &rows {
+        let fields: Vec<&str> = row.rsplitn(3, ',').collect();
+        let (baseline_iou, node_iou): (f64, f64) = (
+            fields[0].parse().expect("baseline IoU"),
+            fields[1].parse().expect("node IoU"),
+        );
+        assert!((0.0..=1.0).contains(&baseline_iou) && (0.0..=1.0).contains(&node_iou));
+        baseline_found += usize::from(baseline_iou >= 0.25);
+    }
+    // The baseline finds some objects (it names unique ones as well as the node does).
+    assert!(baseline_found >= 1, "{csv}");
+    let table = std::fs::read_to_string(out.path().join("baseline.md")).expect("baseline.md");
+    assert!(
+        table.contains("| multiple (same-class distractors) |"),
+        "{table}"
+    );
+}

@@ -109,6 +109,10 @@ pub enum EvalCommand {
         /// instead of the generated ones; only lines whose `scene` is replayed are asked.
         #[arg(long)]
         expressions: Option<PathBuf>,
+        /// Also answer the single-target expressions without instances (the paper's ablation:
+        /// semantic features lifted per voxel, the target phrase's voxels boxed) and compare.
+        #[arg(long)]
+        baseline: bool,
         /// Write every answer's evidence bundle (PNG + JSON) here.
         #[arg(long)]
         evidence: Option<PathBuf>,
@@ -147,6 +151,7 @@ pub fn run(command: EvalCommand) -> Result<()> {
         EvalCommand::Refer {
             scenes,
             expressions,
+            baseline,
             evidence,
             reasoner,
             vlm_endpoint,
@@ -161,7 +166,7 @@ pub fn run(command: EvalCommand) -> Result<()> {
             config.refer.evidence_dir = evidence
                 .map(|d| d.display().to_string())
                 .unwrap_or_default();
-            crate::eval_refer::eval_refer(&files, &config, expressions.as_deref(), &out)
+            crate::eval_refer::eval_refer(&files, &config, expressions.as_deref(), baseline, &out)
         }
     }
 }

@@ -7,8 +7,9 @@ use std::path::Path;
 use std::sync::{Arc, Mutex};
 
 use anyhow::{Context, Result};
+use groupforward::eval::baseline::FeatureVoxels;
 use groupforward::eval::refer::{ask_scene, held_out_views, ReferRecord, Referrer, SceneTruth};
-use groupforward::eval::run::run_scene;
+use groupforward::eval::run::{record_scene, replay_scene_with};
 use groupforward::window::WindowModels;
 use groupforward_sim::referring::{scene_expressions, Expression, Relation, ViewPose};
 use groupforward_sim::scene::SceneFile;
@@ -121,6 +122,7 @@ pub fn eval_refer(
     files: &[SceneFile],
     config: &Config,
     expressions: Option<&Path>,
+    baseline: bool,
     out: &Path,
 ) -> Result<()> {
     let mut models = WindowModels::load(&config.models, &config.semantics)
@@ -130,6 +132,7 @@ pub fn eval_refer(
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let bar = progress_bar(files.len() as u64, "eval refer");
     let mut records = Vec::new();
+    let mut baseline_rows = Vec::new();
     for file in files {
         bar.set_message(file.name.clone());
         let asked: Vec<Expression> = match &given {
@@ -140,8 +143,20 @@ pub fn eval_refer(
                 .collect(),
             None => scene_expressions(file).map_err(|e| anyhow::anyhow!("{}: {e}", file.name))?,
         };
+        let mut voxels = FeatureVoxels::default();
+        let recorded = record_scene(file).with_context(|| format!("scene {}", file.name))?;
         let run =
-            run_scene(file, config, &mut models).with_context(|| format!("scene {}", file.name))?;
+            replay_scene_with(
+                &recorded,
+                config,
+                &mut models,
+                |frames, output, models| match models.semantic.as_mut().filter(|_| baseline) {
+                    Some(semantic) => Ok(voxels.add_window(frames, output, semantic)?),
+                    None => Ok(()),
+                },
+            )
+            .with_context(|| format!("scene {}", file.name))?;
+        let objects = run.objects.clone();
         let sim =
             Simulation::new(file.clone()).map_err(|e| anyhow::anyhow!("{}: {e}", file.name))?;
         let views = held_out_views(&sim, &run.map);
@@ -168,11 +183,25 @@ pub fn eval_refer(
                 }
             }
         }
+        if let (true, Some(vocabulary), Some(encoder)) = (baseline, &models.vocabulary, &encoder) {
+            let named = voxels.named(vocabulary);
+            baseline_rows.extend(crate::eval_baseline::baseline_rows(
+                &asked_records,
+                &objects,
+                &named,
+                vocabulary,
+                encoder,
+            ));
+        }
         records.extend(asked_records);
         bar.inc(1);
     }
     bar.finish_and_clear();
-    write_outputs(&records, out)
+    write_outputs(&records, out)?;
+    if baseline {
+        crate::eval_baseline::write_baseline(&baseline_rows, out)?;
+    }
+    Ok(())
 }
 
 fn write_outputs(records: &[ReferRecord], out: &Path) -> Result<()> {

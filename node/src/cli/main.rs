@@ -9,6 +9,7 @@ mod bench_sweep;
 mod demo;
 mod eval;
 mod eval_all;
+mod eval_baseline;
 mod eval_refer;
 mod eval_window;
 mod model_check;

@@ -1,6 +1,7 @@
 //! Evaluation against the simulator's ground truth (DESIGN §7), the first part of
 //! `groupforward eval`:
 //!
+//! - [`baseline`]: the ablation without instances (semantic features lifted per voxel);
 //! - [`run`]: a sim scene through the node's stages (bag → ingest → keyframes → window pass →
 //!   fusion), every window processed, ground truth kept beside the pipeline;
 //! - [`score`]: the final map and each window's instances scored against the objects;
@@ -9,6 +10,7 @@
 //! - [`window`]: single windows scored as a feed-forward pass is (depth, ARI, semantics, novel
 //!   views).
 
+pub mod baseline;
 pub mod refer;
 pub mod run;
 pub mod score;

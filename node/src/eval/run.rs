@@ -16,12 +16,13 @@ use rayon::prelude::*;
 
 use super::score::{ListedInstance, TruthObject, WindowRecord};
 use crate::config::Config;
+use crate::frame::SyncedFrame;
 use crate::graph::{GraphError, SceneMap};
 use crate::ingest::{DepthValidity, Ingest};
 use crate::node::Node;
 use crate::recon::boxes::{OrientedBox, DEFAULT_TRIM};
 use crate::timing::{Stage, StageTimes};
-use crate::window::{WindowError, WindowModels};
+use crate::window::{WindowError, WindowModels, WindowOutput};
 
 #[derive(Debug, thiserror::Error)]
 pub enum EvalError {
@@ -33,6 +34,8 @@ pub enum EvalError {
     Window(#[from] WindowError),
     #[error(transparent)]
     Graph(#[from] GraphError),
+    #[error(transparent)]
+    Model(#[from] crate::model::ModelError),
 }
 
 /// Everything one scene's run gives the scorer.
@@ -172,6 +175,17 @@ pub fn replay_scene(
     config: &Config,
     models: &mut WindowModels,
 ) -> Result<SceneRun, EvalError> {
+    replay_scene_with(recorded, config, models, |_, _, _| Ok(()))
+}
+
+/// [`replay_scene`], handing each window's frames and pass output (before fusion) with the
+/// models to `on_window`: what a baseline built from the same passes needs.
+pub fn replay_scene_with(
+    recorded: &RecordedScene,
+    config: &Config,
+    models: &mut WindowModels,
+    mut on_window: impl FnMut(&[SyncedFrame], &WindowOutput, &mut WindowModels) -> Result<(), EvalError>,
+) -> Result<SceneRun, EvalError> {
     let frame_pixels = &recorded.frame_pixels;
 
     let routes: HashMap<String, crate::ingest::Route> = Ingest::routes(&config.cameras, &config.tf)
@@ -214,6 +228,7 @@ pub fn replay_scene(
                 }
             }
             let output = models.pass(&frames)?;
+            on_window(&frames, &output, models)?;
             // Scoring's boxes, outside the timed stages.
             let boxes: Vec<OrientedBox> = output
                 .instances

@@ -10,6 +10,33 @@ use crate::model::text::cosine;
 
 use super::scene::{ReferNode, ReferScene};
 
+/// A phrase's `embedding` spread over `phrases` (with their `embeddings`): the softmax of its
+/// cosines / `temperature`, `other` (structure) never taking weight; all zero when only `other`
+/// is there.
+pub fn spread(
+    embedding: &[f32],
+    phrases: &[String],
+    embeddings: &[Vec<f32>],
+    temperature: f32,
+) -> Vec<f32> {
+    let cosines: Vec<f32> = phrases
+        .iter()
+        .zip(embeddings)
+        .map(|(p, e)| {
+            if p == OTHER_PHRASE {
+                f32::NEG_INFINITY
+            } else {
+                cosine(embedding, e)
+            }
+        })
+        .collect();
+    if cosines.iter().any(|c| c.is_finite()) {
+        softmax(&cosines, temperature)
+    } else {
+        vec![0.0; cosines.len()]
+    }
+}
+
 /// A concept phrase spread over a scene's vocabulary.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Concept {
@@ -21,26 +48,9 @@ pub struct Concept {
 impl Concept {
     /// `embedding`: the text encoder's embedding of `phrase`.
     pub fn new(phrase: &str, embedding: &[f32], scene: &ReferScene, temperature: f32) -> Self {
-        let cosines: Vec<f32> = scene
-            .phrases
-            .iter()
-            .zip(&scene.embeddings)
-            .map(|(p, e)| {
-                if p == OTHER_PHRASE {
-                    f32::NEG_INFINITY
-                } else {
-                    cosine(embedding, e)
-                }
-            })
-            .collect();
-        let finite = cosines.iter().any(|c| c.is_finite());
         Self {
             phrase: phrase.to_owned(),
-            weights: if finite {
-                softmax(&cosines, temperature)
-            } else {
-                vec![0.0; cosines.len()]
-            },
+            weights: spread(embedding, &scene.phrases, &scene.embeddings, temperature),
         }
     }
 
