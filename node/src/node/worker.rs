@@ -14,8 +14,10 @@ use crate::outputs::ViewSource;
 use crate::timing::Stage;
 use crate::window::WindowModels;
 
-/// Keyframes waiting for their features at most (more are left to their window pass).
-const KEYFRAMES_WAITING: usize = 24;
+/// Keyframes waiting for their features at most (more are left to their window pass). They
+/// wait only while a window pass runs (a second at most at the camera's keyframe rate), and each
+/// holds its full-resolution colour and depth.
+const KEYFRAMES_WAITING: usize = 8;
 
 enum Work {
     Keyframe(Box<SyncedFrame>),
