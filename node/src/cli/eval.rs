@@ -7,7 +7,6 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
-use clap::Subcommand;
 use groupforward::config::Config;
 use groupforward::eval::run::{run_scene, SceneRun};
 use groupforward::eval::score::{score_map, score_windows, Counts, ObjectRow, Summary};
@@ -27,153 +26,9 @@ const MIN_OBJECT_PIXELS: u64 = 1000;
 /// An object counts as seen by a window with this many pixels in its views.
 const MIN_WINDOW_PIXELS: u64 = 200;
 
-/// Which scenes an evaluation replays, and with which effects.
-#[derive(Debug, Clone, clap::Args)]
-pub struct ScenesArgs {
-    /// Procedural split to score (its scenes are disjoint from training's).
-    #[arg(long, default_value = "benchmark")]
-    split: String,
-    #[arg(long, default_value_t = 10)]
-    scenes: u64,
-    #[arg(long, default_value_t = 0)]
-    first_index: u64,
-    /// Score these scene files (or `<split>:<index>` specs) instead of a split (repeatable).
-    #[arg(long)]
-    scene: Vec<String>,
-    /// Replace every scene's effects by a preset: `clean`, `realistic`, `dropout:<p>`.
-    #[arg(long)]
-    effects: Option<String>,
-}
-
-impl ScenesArgs {
-    fn files(&self) -> Result<Vec<SceneFile>> {
-        scene_files(
-            &self.split,
-            self.first_index,
-            self.scenes,
-            &self.scene,
-            self.effects.as_deref(),
-        )
-    }
-}
-
-#[derive(Debug, Subcommand)]
-pub enum EvalCommand {
-    /// The persistent map against ground truth: recall at 3D IoU 0.25 / 0.5, precision,
-    /// duplicates, merged objects, names, room instances, identity switches; and the same
-    /// yardstick on the window instances before fusion.
-    Map {
-        #[command(flatten)]
-        scenes: ScenesArgs,
-        /// Reconstruction model manifest (default: the shipped RGB-D model).
-        #[arg(long)]
-        model: Option<PathBuf>,
-        #[arg(long, default_value = "target/eval/map")]
-        out: PathBuf,
-    },
-    /// Single windows as a feed-forward pass is scored: depth abs-rel and δ<1.25 of the model's
-    /// depth, instance ARI, semantic pixel accuracy and mIoU in the source views, and PSNR, SSIM
-    /// and semantic labels in a novel view rendered from the window's instances (LPIPS is not
-    /// computed: it needs pretrained weights).
-    Window {
-        #[command(flatten)]
-        scenes: ScenesArgs,
-        /// Reconstruction model manifest (default: the shipped RGB-D model).
-        #[arg(long)]
-        model: Option<PathBuf>,
-        /// Windows per scene, spread over its trajectory.
-        #[arg(long, default_value_t = 2)]
-        windows: usize,
-        #[arg(long, default_value = "target/eval/window")]
-        out: PathBuf,
-    },
-    /// Every evaluation on the same scenes (`window`, `map`, `refer`, each into DIR/<name>), then
-    /// one table of their headline figures and DIR/summary.json.
-    All {
-        #[command(flatten)]
-        scenes: ScenesArgs,
-        /// Windows per scene for `window`.
-        #[arg(long, default_value_t = 2)]
-        windows: usize,
-        #[arg(long, default_value = "target/eval/all")]
-        out: PathBuf,
-    },
-    /// Referring: each scene replayed through the node's stages, then the scene's generated
-    /// expressions (or `--expressions`) asked through the `Refer` service's handler; selection
-    /// accuracy, top-K recall, Acc@0.25 / 0.5, by relation, easy / hard, view-dependent or not,
-    /// and query latency.
-    Refer {
-        #[command(flatten)]
-        scenes: ScenesArgs,
-        /// JSON lines of the sim's expression records (`scene`, `text`, `targets`, ...) to ask
-        /// instead of the generated ones; only lines whose `scene` is replayed are asked.
-        #[arg(long)]
-        expressions: Option<PathBuf>,
-        /// Also answer the single-target expressions without instances (the paper's ablation:
-        /// semantic features lifted per voxel, the target phrase's voxels boxed) and compare.
-        #[arg(long)]
-        baseline: bool,
-        /// Write every answer's evidence bundle (PNG + JSON) here.
-        #[arg(long)]
-        evidence: Option<PathBuf>,
-        /// `builtin` (default) or `vlm` (needs `--vlm-endpoint`).
-        #[arg(long, default_value = "builtin")]
-        reasoner: String,
-        /// OpenAI-compatible API base URL for `--reasoner vlm`, e.g. http://localhost:8000/v1.
-        #[arg(long, default_value = "")]
-        vlm_endpoint: String,
-        #[arg(long, default_value = "")]
-        vlm_model: String,
-        #[arg(long, default_value = "target/eval/refer")]
-        out: PathBuf,
-    },
-}
-
-pub fn run(command: EvalCommand) -> Result<()> {
-    match command {
-        EvalCommand::Map { scenes, model, out } => {
-            eval_map(&scenes.files()?, model, scenes.effects.as_deref(), &out)
-        }
-        EvalCommand::Window {
-            scenes,
-            model,
-            windows,
-            out,
-        } => crate::eval_window::eval_window(&scenes.files()?, model, windows, &out),
-        EvalCommand::All {
-            scenes,
-            windows,
-            out,
-        } => {
-            std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
-            crate::eval_all::eval_all(&scenes.files()?, scenes.effects.as_deref(), windows, &out)
-        }
-        EvalCommand::Refer {
-            scenes,
-            expressions,
-            baseline,
-            evidence,
-            reasoner,
-            vlm_endpoint,
-            vlm_model,
-            out,
-        } => {
-            let files = scenes.files()?;
-            let mut config = eval_config(None);
-            config.refer.reasoner = reasoner;
-            config.refer.vlm.endpoint = vlm_endpoint;
-            config.refer.vlm.model = vlm_model;
-            config.refer.evidence_dir = evidence
-                .map(|d| d.display().to_string())
-                .unwrap_or_default();
-            crate::eval_refer::eval_refer(&files, &config, expressions.as_deref(), baseline, &out)
-        }
-    }
-}
-
 /// The scenes to replay: `specs` (files or `<split>:<index>`) if any, else scenes
 /// `first_index..first_index + count` of `split`; with `effects` as every scene's preset.
-fn scene_files(
+pub fn scene_files(
     split: &str,
     first_index: u64,
     count: u64,

@@ -10,6 +10,7 @@ mod demo;
 mod eval;
 mod eval_all;
 mod eval_baseline;
+mod eval_command;
 mod eval_refer;
 mod eval_window;
 mod model_check;
@@ -53,10 +54,10 @@ enum Command {
         #[command(subcommand)]
         command: bench::BenchCommand,
     },
-    /// Evaluations against the simulator's ground truth (the map: `eval map`).
+    /// Evaluations against the simulator's ground truth: `map`, `window`, `refer`, or `all`.
     Eval {
         #[command(subcommand)]
-        command: eval::EvalCommand,
+        command: eval_command::EvalCommand,
     },
     /// End-to-end demo in one process: the simulator records a scene as a bag, the bag is
     /// replayed over an embedded zenoh peer into the node, and the node is queried.
@@ -86,7 +87,7 @@ fn main() -> Result<()> {
         Command::ModelCheck(args) => model_check::run(args),
         Command::Sim { command } => sim::run(command),
         Command::Bench { command } => bench::run(command),
-        Command::Eval { command } => eval::run(command),
+        Command::Eval { command } => eval_command::run(command),
         Command::Demo(args) => demo::run(args),
     }
 }
