@@ -594,8 +594,9 @@ impl WindowModels {
         })
     }
 
-    /// Keep computed-ahead features for windows of `views` views.
+    /// Keep computed-ahead features for windows of `views` views (2–24, as windows take them).
     pub fn set_views(&mut self, views: usize) {
+        let views = views.clamp(2, 24);
         if self.features.capacity != views {
             self.features = FeatureCache::with_capacity(views);
         }

@@ -44,14 +44,6 @@ pub struct NamedVoxels {
 }
 
 impl FeatureVoxels {
-    pub fn len(&self) -> usize {
-        self.cells.len()
-    }
-
-    pub fn is_empty(&self) -> bool {
-        self.cells.is_empty()
-    }
-
     /// Lift every pixel of `output`'s views that has valid depth (as the node lifts them), with
     /// the semantic feature the model gives its image there.
     pub fn add_window(

@@ -196,7 +196,7 @@ pub fn replay_scene_with(
     let mut windows = Vec::new();
     let mut window_times = Vec::new();
     let mut ahead = Vec::new();
-    models.set_views(config.window.views.clamp(2, 24));
+    models.set_views(config.window.views);
     let stream =
         mcap::MessageStream::new(&recorded.bag).map_err(|e| EvalError::Bag(e.to_string()))?;
     for message in stream {

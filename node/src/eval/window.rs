@@ -50,23 +50,12 @@ impl PooledLabels {
         self.truth.push(truth);
     }
 
-    /// The share of pixels whose label is right (NaN when empty).
-    pub fn accuracy(&self) -> f64 {
-        let hits = self
-            .predicted
-            .iter()
-            .zip(&self.truth)
-            .filter(|(p, t)| p == t)
-            .count();
-        hits as f64 / self.truth.len() as f64
-    }
-
-    fn tail_accuracy(&self, from: usize) -> f64 {
-        PooledLabels {
-            predicted: self.predicted[from..].to_vec(),
-            truth: self.truth[from..].to_vec(),
-        }
-        .accuracy()
+    /// The share of the pixels pushed since `from` (one window's) whose label is right (NaN when
+    /// none was).
+    fn accuracy_from(&self, from: usize) -> f64 {
+        let (predicted, truth) = (&self.predicted[from..], &self.truth[from..]);
+        let hits = predicted.iter().zip(truth).filter(|(p, t)| p == t).count();
+        hits as f64 / truth.len() as f64
     }
 }
 
@@ -238,7 +227,7 @@ pub fn score_scene(
                     );
                 }
             }
-            semantic_accuracy = eval.source_labels.tail_accuracy(source_from);
+            semantic_accuracy = eval.source_labels.accuracy_from(source_from);
         }
 
         // The novel view, rendered from the window's instance Gaussians at the model resolution.
@@ -296,7 +285,7 @@ pub fn score_scene(
                     let predicted = label.map_or(other, |k| named[k as usize]);
                     eval.novel_labels.push(predicted, phrase_of_class(class));
                 }
-                novel_semantic_accuracy = eval.novel_labels.tail_accuracy(from);
+                novel_semantic_accuracy = eval.novel_labels.accuracy_from(from);
             }
         }
         eval.rows.push(WindowScore {

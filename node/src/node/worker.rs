@@ -108,7 +108,7 @@ pub(super) fn start_window_worker(
     );
     let shared = shared.clone();
     let (models, semantics) = (config.models.clone(), config.semantics.clone());
-    let views = config.window.views.clamp(2, 24);
+    let views = config.window.views;
     let worker = std::thread::spawn(move || {
         // Loaded here, not on the node loop: ingest and services run while the models load.
         let mut models = match WindowModels::load(&models, &semantics) {
