@@ -11,7 +11,9 @@ use std::collections::VecDeque;
 use serde::{Deserialize, Serialize};
 
 use crate::frame::{Keyframe, SyncedFrame, WindowInstance, WindowView};
-use crate::group::cleaning::{flying_pixels, split_components, CleaningParams};
+use crate::group::cleaning::{
+    drop_support_bleed, floor_height, flying_pixels, split_components, CleaningParams,
+};
 use crate::group::semantics::{prototypes, LabelledView, SemanticsSection, Vocabulary};
 use crate::group::{group, GroupError, GroupingParams};
 use crate::model::manifest::InputMode;
@@ -363,6 +365,16 @@ pub fn pass_with_cache(
         cell,
         grouping.hdbscan.min_cluster_size,
     );
+    if let Some(floor) = floor_height(&gaussians.means) {
+        drop_support_bleed(
+            &mut labels,
+            &gaussians.means,
+            clusters,
+            floor,
+            cleaning.support_slab,
+            cleaning.support_margin,
+        );
+    }
     times.0.push((Stage::Clean, clean_started.elapsed()));
     let semantics_started = std::time::Instant::now();
     let (mut instance_prototypes, mut semantics_error) = (Vec::new(), None);

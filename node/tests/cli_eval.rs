@@ -24,6 +24,14 @@ fn eval(args: &[&str]) -> (tempfile::TempDir, std::process::Output) {
     (out, run)
 }
 
+fn value_of(header: &[&str], row: &[&str], name: &str) -> f64 {
+    let at = header
+        .iter()
+        .position(|c| *c == name)
+        .unwrap_or_else(|| panic!("no column {name}"));
+    row[at].parse().unwrap_or_else(|e| panic!("{name}: {e}"))
+}
+
 #[test]
 fn eval_window_scores_depth_instances_semantics_and_a_novel_view() {
     let (out, run) = eval(&["window"]);
@@ -34,13 +42,7 @@ fn eval_window_scores_depth_instances_semantics_and_a_novel_view() {
     let header: Vec<&str> = lines.next().expect("a header").split(',').collect();
     let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
     assert_eq!(rows.len(), 2, "two windows a scene by default");
-    let value = |row: &[&str], name: &str| -> f64 {
-        let at = header
-            .iter()
-            .position(|c| *c == name)
-            .unwrap_or_else(|| panic!("no column {name}"));
-        row[at].parse().unwrap_or_else(|e| panic!("{name}: {e}"))
-    };
+    let value = |row: &[&str], name: &str| value_of(&header, row, name);
     for row in &rows {
         // Measured on benchmark_00010: abs-rel 0.013, δ1 100%, ARI 0.955, semantic 86.8%,
         // PSNR 22.8 dB, SSIM 0.755 (means of its two windows).
@@ -53,7 +55,22 @@ fn eval_window_scores_depth_instances_semantics_and_a_novel_view() {
         assert!((0.4..=1.0).contains(&ssim), "{row:?}");
         assert!((0.0..=1.0).contains(&value(row, "novel_semantic_pixel_accuracy")));
         assert!(value(row, "instances") >= 2.0);
+        assert!(value(row, "object_coverage") > 0.6, "{row:?}");
     }
+    // Where each object's pixels went: shares of one object that add up to one.
+    let objects = std::fs::read_to_string(out.path().join("objects.csv")).expect("objects.csv");
+    let mut lines = objects.lines();
+    let header: Vec<&str> = lines.next().expect("a header").split(',').collect();
+    let mut sightings = 0;
+    for line in lines {
+        let row: Vec<&str> = line.split(',').collect();
+        let share = |name: &str| value_of(&header, &row, name);
+        let total = share("in_best") + share("split") + share("to_structure") + share("unassigned");
+        assert!((total - 1.0).abs() < 1e-3, "{line}");
+        assert!((0.0..=1.0).contains(&share("best_iou")), "{line}");
+        sightings += 1;
+    }
+    assert!(sightings >= 4, "{objects}");
     let summary: serde_json::Value = serde_json::from_str(
         &std::fs::read_to_string(out.path().join("summary.json")).expect("summary.json"),
     )

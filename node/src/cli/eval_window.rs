@@ -6,7 +6,9 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
-use groupforward::eval::window::{phrase_index, score_scene, WindowEval, WindowScore};
+use groupforward::eval::window::{
+    phrase_index, score_scene, CoveredObject, WindowEval, WindowScore, COVERAGE_MIN_PIXELS,
+};
 use groupforward::group::semantics::OTHER_PHRASE;
 use groupforward::recon::metrics::semantic_scores;
 use groupforward::window::WindowModels;
@@ -23,6 +25,7 @@ pub struct Means {
     pub depth_abs_rel: f64,
     pub depth_delta1: f64,
     pub ari: f64,
+    pub object_coverage: f64,
     pub semantic_pixel_accuracy: f64,
     pub novel_psnr: f64,
     pub novel_ssim: f64,
@@ -43,6 +46,7 @@ fn means(rows: &[&WindowScore]) -> Means {
         depth_abs_rel: mean(|r| r.depth_abs_rel),
         depth_delta1: mean(|r| r.depth_delta1),
         ari: mean(|r| r.ari),
+        object_coverage: mean(|r| r.object_coverage),
         semantic_pixel_accuracy: mean(|r| r.semantic_pixel_accuracy),
         novel_psnr: mean(|r| r.novel_psnr),
         novel_ssim: mean(|r| r.novel_ssim),
@@ -75,13 +79,13 @@ pub fn eval_window(
     let mut csv = std::io::BufWriter::new(std::fs::File::create(out.join("windows.csv"))?);
     writeln!(
         csv,
-        "scene,frames,novel_frame,instances,depth_abs_rel,depth_delta1,ari,semantic_pixel_accuracy,novel_psnr,novel_ssim,novel_semantic_pixel_accuracy"
+        "scene,frames,novel_frame,instances,depth_abs_rel,depth_delta1,ari,object_coverage,semantic_pixel_accuracy,novel_psnr,novel_ssim,novel_semantic_pixel_accuracy"
     )?;
     for r in &eval.rows {
         let frames: Vec<String> = r.frames.iter().map(usize::to_string).collect();
         writeln!(
             csv,
-            "{},{},{},{},{:.5},{:.5},{:.5},{:.5},{:.3},{:.5},{:.5}",
+            "{},{},{},{},{:.5},{:.5},{:.5},{:.5},{:.5},{:.3},{:.5},{:.5}",
             r.scene,
             frames.join(" "),
             r.novel_frame,
@@ -89,6 +93,7 @@ pub fn eval_window(
             r.depth_abs_rel,
             r.depth_delta1,
             r.ari,
+            r.object_coverage,
             r.semantic_pixel_accuracy,
             r.novel_psnr,
             r.novel_ssim,
@@ -96,6 +101,30 @@ pub fn eval_window(
         )?;
     }
     csv.flush()?;
+    let mut objects_csv = std::io::BufWriter::new(std::fs::File::create(out.join("objects.csv"))?);
+    writeln!(
+        objects_csv,
+        "scene,class,object,pixels,best_iou,in_best,split,to_structure,unassigned,impurity"
+    )?;
+    for o in &eval.objects {
+        let c = &o.coverage;
+        writeln!(
+            objects_csv,
+            "{},{},{},{},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4}",
+            o.scene,
+            o.class,
+            c.object,
+            c.pixels,
+            c.best_iou,
+            c.in_best,
+            c.split,
+            c.to_structure,
+            c.unassigned,
+            c.impurity
+        )?;
+    }
+    objects_csv.flush()?;
+    let coverage = coverage_rows(&eval.objects);
 
     let all = means(&eval.rows.iter().collect::<Vec<_>>());
     let per_scene: Vec<(String, Means)> = files
@@ -124,6 +153,7 @@ pub fn eval_window(
     let semantic = config.models.semantic.clone().unwrap_or_default();
     let json = serde_json::json!({
         "summary": all,
+        "object_pixels": coverage.iter().map(|(class, c)| serde_json::json!({"class": class, "coverage": c})).collect::<Vec<_>>(),
         "source_semantic_miou": source_miou,
         "novel_semantic_miou": novel_miou,
         "lpips": "not computed: it needs pretrained network weights, which cannot be fetched here",
@@ -144,7 +174,8 @@ pub fn eval_window(
         out.join("summary.json"),
         serde_json::to_string_pretty(&json)?,
     )?;
-    let table = markdown(&per_scene, &all, source_miou, novel_miou);
+    let mut table = markdown(&per_scene, &all, source_miou, novel_miou);
+    table.push_str(&coverage_markdown(&coverage));
     std::fs::write(out.join("summary.md"), &table)?;
     print!("{table}");
     println!(
@@ -161,16 +192,17 @@ fn markdown(
     novel_miou: Option<f64>,
 ) -> String {
     let mut out = String::from(
-        "| scene | windows | depth abs-rel | δ<1.25 | instance ARI | semantic pixel acc. | novel PSNR (dB) | novel SSIM | novel semantic pixel acc. |\n\
-         | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |\n",
+        "| scene | windows | depth abs-rel | δ<1.25 | instance ARI | object coverage | semantic pixel acc. | novel PSNR (dB) | novel SSIM | novel semantic pixel acc. |\n\
+         | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |\n",
     );
     let row = |name: &str, m: &Means| {
         format!(
-            "| {name} | {} | {:.3} | {:.1}% | {:.3} | {:.1}% | {:.2} | {:.3} | {:.1}% |\n",
+            "| {name} | {} | {:.3} | {:.1}% | {:.3} | {:.3} | {:.1}% | {:.2} | {:.3} | {:.1}% |\n",
             m.windows,
             m.depth_abs_rel,
             100.0 * m.depth_delta1,
             m.ari,
+            m.object_coverage,
             100.0 * m.semantic_pixel_accuracy,
             m.novel_psnr,
             m.novel_ssim,
@@ -187,5 +219,72 @@ fn markdown(
         pct(source_miou),
         pct(novel_miou)
     ));
+    out
+}
+
+/// Where objects' pixels went, pooled over one class's sightings (an object in one window).
+#[derive(Debug, Clone, Copy, Default, serde::Serialize)]
+pub struct CoverageMeans {
+    pub sightings: usize,
+    pub best_iou: f64,
+    pub in_best: f64,
+    pub split: f64,
+    pub to_structure: f64,
+    pub unassigned: f64,
+    pub impurity: f64,
+}
+
+/// Per class (most sighted first), then `all`.
+fn coverage_rows(objects: &[CoveredObject]) -> Vec<(String, CoverageMeans)> {
+    let pool = |of: &[&CoveredObject]| {
+        let n = of.len().max(1) as f64;
+        let mean = |value: fn(&CoveredObject) -> f64| of.iter().map(|o| value(o)).sum::<f64>() / n;
+        CoverageMeans {
+            sightings: of.len(),
+            best_iou: mean(|o| o.coverage.best_iou),
+            in_best: mean(|o| o.coverage.in_best),
+            split: mean(|o| o.coverage.split),
+            to_structure: mean(|o| o.coverage.to_structure),
+            unassigned: mean(|o| o.coverage.unassigned),
+            impurity: mean(|o| o.coverage.impurity),
+        }
+    };
+    let mut classes: Vec<&str> = objects.iter().map(|o| o.class.as_str()).collect();
+    classes.sort_unstable();
+    classes.dedup();
+    let mut rows: Vec<(String, CoverageMeans)> = classes
+        .into_iter()
+        .map(|class| {
+            let of: Vec<&CoveredObject> = objects.iter().filter(|o| o.class == class).collect();
+            (class.to_owned(), pool(&of))
+        })
+        .collect();
+    rows.sort_by(|a, b| b.1.sightings.cmp(&a.1.sightings).then(a.0.cmp(&b.0)));
+    rows.push((
+        "**all**".to_owned(),
+        pool(&objects.iter().collect::<Vec<_>>()),
+    ));
+    rows
+}
+
+fn coverage_markdown(rows: &[(String, CoverageMeans)]) -> String {
+    let mut out = format!(
+        "\nWhere objects' pixels went (objects with ≥ {COVERAGE_MIN_PIXELS} model pixels in a window; \
+         shares of the object's pixels; impurity: the best instance's pixels that are not the object):\n\n\
+         | class | sightings | best IoU | in best instance | split off | to the room | in no instance | impurity |\n\
+         | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |\n"
+    );
+    for (class, c) in rows {
+        out.push_str(&format!(
+            "| {class} | {} | {:.3} | {:.1}% | {:.1}% | {:.1}% | {:.1}% | {:.1}% |\n",
+            c.sightings,
+            c.best_iou,
+            100.0 * c.in_best,
+            100.0 * c.split,
+            100.0 * c.to_structure,
+            100.0 * c.unassigned,
+            100.0 * c.impurity,
+        ));
+    }
     out
 }

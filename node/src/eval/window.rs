@@ -15,7 +15,9 @@ use crate::group::semantics::{Vocabulary, OTHER_PHRASE};
 use crate::model::reconstruction::{resize_rgb_planar, resized_camera};
 use crate::recon::camera::Camera;
 use crate::recon::gaussians::Gaussians;
-use crate::recon::metrics::{adjusted_rand_index, depth_scores, psnr, ssim};
+use crate::recon::metrics::{
+    adjusted_rand_index, depth_scores, object_coverage, psnr, ssim, ObjectCoverage,
+};
 use crate::recon::raster::{render, render_labels, RasterSettings};
 use crate::recon::Rigid;
 use crate::window::WindowModels;
@@ -31,11 +33,17 @@ pub struct WindowScore {
     pub depth_abs_rel: f64,
     pub depth_delta1: f64,
     pub ari: f64,
+    /// Mean over the window's objects of their best instance IoU in pixels (mCov).
+    pub object_coverage: f64,
     pub semantic_pixel_accuracy: f64,
     pub novel_psnr: f64,
     pub novel_ssim: f64,
     pub novel_semantic_pixel_accuracy: f64,
 }
+
+/// Objects with fewer pixels in a window (at the model resolution, all views) are not scored for
+/// coverage: a sliver at the image border says nothing about grouping.
+pub const COVERAGE_MIN_PIXELS: u64 = 200;
 
 /// Labels (vocabulary phrase indices) predicted and true, pooled over windows for mIoU.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -59,10 +67,20 @@ impl PooledLabels {
     }
 }
 
+/// One object in one window, and where its pixels went.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CoveredObject {
+    pub scene: String,
+    pub class: String,
+    pub coverage: ObjectCoverage,
+}
+
 /// Every window of an evaluation, and the labels its semantic scores pool.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct WindowEval {
     pub rows: Vec<WindowScore>,
+    /// Where each object's pixels went, per window.
+    pub objects: Vec<CoveredObject>,
     pub source_labels: PooledLabels,
     pub novel_labels: PooledLabels,
 }
@@ -207,6 +225,31 @@ pub fn score_scene(
             .collect();
         let ari = adjusted_rand_index(&predicted, &true_instances)
             .map_err(|e| sim_error(format!("ARI: {e}")))?;
+        let coverage = object_coverage(
+            &predicted,
+            &true_instances,
+            u32::MAX,
+            0,
+            COVERAGE_MIN_PIXELS,
+        )
+        .map_err(|e| sim_error(format!("coverage: {e}")))?;
+        let object_coverage_mean =
+            coverage.iter().map(|c| c.best_iou).sum::<f64>() / coverage.len().max(1) as f64;
+        let class_names = classes();
+        for c in coverage {
+            let class = sim
+                .scene
+                .objects
+                .iter()
+                .find(|o| u32::from(o.instance_id) == c.object)
+                .and_then(|o| class_names.iter().find(|k| k.id == o.class_id))
+                .map_or("object", |k| k.name);
+            eval.objects.push(CoveredObject {
+                scene: scene.to_owned(),
+                class: class.to_owned(),
+                coverage: c,
+            });
+        }
 
         let mut semantic_accuracy = f64::NAN;
         let mut novel_semantic_accuracy = f64::NAN;
@@ -296,6 +339,7 @@ pub fn score_scene(
             depth_abs_rel: depth.abs_rel,
             depth_delta1: depth.delta1,
             ari,
+            object_coverage: object_coverage_mean,
             semantic_pixel_accuracy: semantic_accuracy,
             novel_psnr,
             novel_ssim,

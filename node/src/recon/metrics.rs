@@ -263,6 +263,99 @@ pub fn adjusted_rand_index(a: &[u32], b: &[u32]) -> Result<f64> {
     Ok((index - expected) / (max - expected))
 }
 
+/// Where one object's pixels went in a predicted instance segmentation.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ObjectCoverage {
+    pub object: u32,
+    pub pixels: u64,
+    /// IoU of the object's pixels with its best-overlapping object instance (0 when none).
+    pub best_iou: f64,
+    /// Shares of the object's pixels: in that best instance, in other object instances (split),
+    /// in instances that are mostly structure (given to the room), and in none (noise, not lifted).
+    pub in_best: f64,
+    pub split: f64,
+    pub to_structure: f64,
+    pub unassigned: f64,
+    /// Share of the best instance's pixels that are not this object (merged with something else).
+    pub impurity: f64,
+}
+
+/// Per object (truth labels other than `structure`, with at least `min_pixels` pixels): how well
+/// the predicted instances cover it. `predicted` uses `unassigned` for pixels in no instance; a
+/// predicted instance whose pixels are mostly `structure` counts as structure, not as an object
+/// instance. This locates a segmentation's loss: objects split, merged, given to the room, or
+/// dropped.
+pub fn object_coverage(
+    predicted: &[u32],
+    truth: &[u32],
+    unassigned: u32,
+    structure: u32,
+    min_pixels: u64,
+) -> Result<Vec<ObjectCoverage>> {
+    same_len(predicted.len(), truth.len())?;
+    let mut joint: HashMap<(u32, u32), u64> = HashMap::new();
+    let mut instance_sizes: HashMap<u32, u64> = HashMap::new();
+    let mut object_sizes: HashMap<u32, u64> = HashMap::new();
+    for (&p, &t) in predicted.iter().zip(truth) {
+        *joint.entry((p, t)).or_default() += 1;
+        *object_sizes.entry(t).or_default() += 1;
+        if p != unassigned {
+            *instance_sizes.entry(p).or_default() += 1;
+        }
+    }
+    let structure_instance = |p: u32| {
+        let size = instance_sizes.get(&p).copied().unwrap_or(0);
+        2 * joint.get(&(p, structure)).copied().unwrap_or(0) > size
+    };
+    let mut objects: Vec<(u32, u64)> = object_sizes
+        .into_iter()
+        .filter(|&(t, n)| t != structure && n >= min_pixels.max(1))
+        .collect();
+    objects.sort_unstable();
+    Ok(objects
+        .into_iter()
+        .map(|(object, pixels)| {
+            let (mut best, mut best_overlap) = (None, 0u64);
+            let (mut structure_pixels, mut none) = (0u64, 0u64);
+            let mut overlaps: Vec<(u32, u64)> = joint
+                .iter()
+                .filter(|((_, t), _)| *t == object)
+                .map(|((p, _), &n)| (*p, n))
+                .collect();
+            overlaps.sort_unstable();
+            for &(p, n) in &overlaps {
+                if p == unassigned {
+                    none += n;
+                } else if structure_instance(p) {
+                    structure_pixels += n;
+                } else if n > best_overlap {
+                    (best, best_overlap) = (Some(p), n);
+                }
+            }
+            let share = |n: u64| n as f64 / pixels as f64;
+            let (best_iou, impurity) = best.map_or((0.0, 0.0), |p| {
+                let size = instance_sizes[&p];
+                let union = pixels + size - best_overlap;
+                (
+                    best_overlap as f64 / union as f64,
+                    1.0 - best_overlap as f64 / size as f64,
+                )
+            });
+            let split = pixels - best_overlap - structure_pixels - none;
+            ObjectCoverage {
+                object,
+                pixels,
+                best_iou,
+                in_best: share(best_overlap),
+                split: share(split),
+                to_structure: share(structure_pixels),
+                unassigned: share(none),
+                impurity,
+            }
+        })
+        .collect())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -348,6 +441,52 @@ mod tests {
             let ari = adjusted_rand_index(&labels(&case["a"]), &labels(&case["b"])).unwrap();
             close(ari, case["ari"].as_f64().unwrap(), 1e-12, "ari");
         }
+    }
+
+    #[test]
+    fn object_coverage_splits_an_object_into_where_its_pixels_went() {
+        const NONE: u32 = u32::MAX;
+        let (a, b, c, room) = (10, 11, 12, 13);
+        let mut predicted = Vec::new();
+        let mut truth = Vec::new();
+        let mut put = |p: u32, t: u32, n: usize| {
+            predicted.extend(std::iter::repeat_n(p, n));
+            truth.extend(std::iter::repeat_n(t, n));
+        };
+        // Object 1: 6 pixels in A, 2 in B, 1 given to the room, 1 in no instance.
+        put(a, 1, 6);
+        put(b, 1, 2);
+        put(room, 1, 1);
+        put(NONE, 1, 1);
+        // Object 2: 2 pixels merged into A, 4 in C; the room instance is mostly structure (0).
+        put(a, 2, 2);
+        put(c, 2, 4);
+        put(room, 0, 8);
+        let all = object_coverage(&predicted, &truth, NONE, 0, 1).unwrap();
+        assert_eq!(all.len(), 2, "structure is not an object");
+        let one = all[0];
+        assert_eq!((one.object, one.pixels), (1, 10));
+        assert!((one.best_iou - 6.0 / 12.0).abs() < 1e-12);
+        assert!((one.in_best - 0.6).abs() < 1e-12);
+        assert!((one.split - 0.2).abs() < 1e-12);
+        assert!((one.to_structure - 0.1).abs() < 1e-12);
+        assert!((one.unassigned - 0.1).abs() < 1e-12);
+        assert!((one.impurity - 0.25).abs() < 1e-12, "A holds 2 of object 2");
+        let two = all[1];
+        assert!((two.best_iou - 4.0 / 6.0).abs() < 1e-12);
+        assert!((two.split - 2.0 / 6.0).abs() < 1e-12);
+        assert_eq!(two.impurity, 0.0);
+        // Small objects are left out; an object in no instance has a zero, finite IoU.
+        assert_eq!(
+            object_coverage(&predicted, &truth, NONE, 0, 7)
+                .unwrap()
+                .len(),
+            1
+        );
+        let dropped = object_coverage(&[NONE; 3], &[5; 3], NONE, 0, 1).unwrap();
+        assert_eq!(dropped[0].best_iou, 0.0);
+        assert_eq!(dropped[0].unassigned, 1.0);
+        assert!(object_coverage(&[], &[], NONE, 0, 1).unwrap().is_empty());
     }
 
     #[test]
