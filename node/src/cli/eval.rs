@@ -267,16 +267,17 @@ fn csv_writer(path: &Path) -> Result<std::io::BufWriter<std::fs::File>> {
 
 fn markdown(total: &Summary, per_scene: &[(String, Summary, usize)]) -> String {
     let mut out = String::from(
-        "| scene | objects | listed | recall@0.25 | recall@0.5 | precision | duplicates | merged | names | room | id switches / 100 | window recall@0.25 | window precision |\n\
-         | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |\n",
+        "| scene | objects | listed | recall@0.25 | recall@0.5 | mean IoU | precision | duplicates | merged | names | room | id switches / 100 | window recall@0.25 | window precision |\n\
+         | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |\n",
     );
     let row = |name: &str, s: &Summary| {
         format!(
-            "| {name} | {} | {} | {:.1}% | {:.1}% | {:.1}% | {:.1}% | {} | {:.1}% | {} | {:.2} | {:.1}% | {:.1}% |\n",
+            "| {name} | {} | {} | {:.1}% | {:.1}% | {:.3} | {:.1}% | {:.1}% | {} | {:.1}% | {} | {:.2} | {:.1}% | {:.1}% |\n",
             s.objects_scored,
             s.instances_listed,
             100.0 * s.recall_at_25,
             100.0 * s.recall_at_50,
+            s.mean_iou,
             100.0 * s.precision,
             100.0 * s.duplicate_rate,
             s.merged_objects,

@@ -95,6 +95,8 @@ pub struct Counts {
     pub names_correct: u64,
     pub centre_error_sum_m: f64,
     pub size_ratio_log_sum: f64,
+    /// IoU of each scored object with the instance matched to it (0 when none), summed.
+    pub iou_sum: f64,
     /// Window level (before fusion).
     pub window_objects: u64,
     pub window_found_25: u64,
@@ -119,6 +121,7 @@ impl Counts {
         self.names_correct += o.names_correct;
         self.centre_error_sum_m += o.centre_error_sum_m;
         self.size_ratio_log_sum += o.size_ratio_log_sum;
+        self.iou_sum += o.iou_sum;
         self.window_objects += o.window_objects;
         self.window_found_25 += o.window_found_25;
         self.window_instances += o.window_instances;
@@ -143,6 +146,7 @@ impl Counts {
             id_switches_per_100_sightings: 100.0 * ratio(self.id_switches as f64, self.sightings),
             mean_centre_error_m: ratio(self.centre_error_sum_m, self.found_25),
             size_ratio_geomean: ratio(self.size_ratio_log_sum, self.found_25).exp(),
+            mean_iou: ratio(self.iou_sum, self.objects_scored),
             objects_scored: self.objects_scored,
             objects_not_seen: self.objects_not_seen,
             instances_listed: self.instances_listed,
@@ -166,6 +170,9 @@ pub struct Summary {
     pub mean_centre_error_m: f64,
     /// Geometric mean of instance over object box volume, over found objects (1 = right size).
     pub size_ratio_geomean: f64,
+    /// Mean over scored objects of the IoU with the instance matched to them (0 when none): a
+    /// smoother yardstick of box quality than the two recall thresholds.
+    pub mean_iou: f64,
     pub objects_scored: u64,
     pub objects_not_seen: u64,
     pub instances_listed: u64,
@@ -276,6 +283,7 @@ pub fn score_map(
             continue;
         }
         counts.objects_scored += 1;
+        counts.iou_sum += row.iou;
         if row.iou >= IOU_LOOSE {
             row.outcome = Outcome::Found;
             counts.found_25 += 1;
@@ -399,6 +407,7 @@ mod tests {
         );
         assert_eq!(s.name_top1, 1.0);
         assert!(s.mean_centre_error_m < 1e-12 && (s.size_ratio_geomean - 1.0).abs() < 1e-9);
+        assert!((s.mean_iou - 1.0).abs() < 1e-9);
         assert!(rows.iter().all(|r| r.outcome == Outcome::Found));
     }
 
@@ -416,6 +425,7 @@ mod tests {
         assert!((s.recall_at_25 - 1.0).abs() < 1e-12);
         assert!((s.recall_at_50 - 2.0 / 3.0).abs() < 1e-12);
         assert!((rows[0].centre_error_m - 0.2).abs() < 1e-9);
+        assert!((s.mean_iou - (0.3 / 0.7 + 2.0) / 3.0).abs() < 1e-9);
     }
 
     #[test]

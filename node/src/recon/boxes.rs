@@ -78,8 +78,8 @@ impl OrientedBox {
         }
     }
 
-    /// A box fitted to `points`: yaw from the footprint's principal axes (the minimum-area
-    /// rectangle among a few candidates around them), extents from trimmed percentiles
+    /// A box fitted to `points`: the yaw, among a quarter turn of candidates, whose rectangle
+    /// has the points closest to its sides, extents from trimmed percentiles
     /// (`trim` of the points left out at each end of each axis). Finite for any input: an empty
     /// set gives a zero box at the origin, a single point or a degenerate set a box of zero size
     /// along the degenerate axes.
@@ -96,19 +96,38 @@ impl OrientedBox {
         // The vertical extent does not depend on the yaw.
         let mut z: Vec<f64> = points.iter().map(|p| p.z).collect();
         let vertical = trimmed_range(&mut z, trim);
-        // Near-square footprints have no stable principal axis: try the neighbourhood and keep
-        // the tightest rectangle.
+        // The principal axis is no box axis for an L of two visible faces (a cabinet seen from
+        // its front and one side) or a near-square footprint, and an L's smallest rectangle is
+        // as often diagonal as not: try a quarter turn in 3.75° steps and keep the yaw that puts
+        // the points closest to the box's sides (the closeness criterion of L-shape fitting).
         let mut best: Option<(f64, Self)> = None;
-        for step in -6..=6 {
+        for step in 0..24 {
             let yaw = principal + f64::from(step) * std::f64::consts::PI / 48.0;
             let candidate = Self::fit_at_yaw(&points, yaw, trim, vertical);
-            let area = candidate.footprint_area();
-            if best.as_ref().is_none_or(|(a, _)| area < *a - 1e-12) {
-                best = Some((area, candidate));
+            let closeness = candidate.closeness(&points);
+            if best.as_ref().is_none_or(|(c, _)| closeness > *c + 1e-9) {
+                best = Some((closeness, candidate));
             }
         }
         let (_, fitted) = best.unwrap_or((0.0, Self::fit_at_yaw(&points, 0.0, trim, vertical)));
         fitted.canonical()
+    }
+
+    /// How close `points` lie to this box's vertical sides: Σ 1 / max(d, 1 cm) over the points,
+    /// d the distance to the nearest side in the footprint (points outside count as on it).
+    fn closeness(&self, points: &[DVec3]) -> f64 {
+        const FLOOR: f64 = 0.01;
+        let (c, s) = (self.yaw.cos(), self.yaw.sin());
+        let half = self.size.truncate() / 2.0;
+        points
+            .iter()
+            .map(|p| {
+                let d = p.truncate() - self.centre.truncate();
+                let (u, v) = (c * d.x + s * d.y, -s * d.x + c * d.y);
+                let to_side = (half.x - u.abs()).min(half.y - v.abs()).max(0.0);
+                1.0 / to_side.max(FLOOR)
+            })
+            .sum()
     }
 
     /// Trimmed extents along the axes of `yaw`; `(z0, z1)` the trimmed vertical range.
@@ -319,6 +338,37 @@ mod tests {
         assert!(trimmed.size.max_element() < 0.6, "{trimmed:?}");
         let untrimmed = OrientedBox::fit(&points, 0.0);
         assert!(untrimmed.size.max_element() > 2.0);
+    }
+
+    #[test]
+    fn two_visible_faces_of_a_cabinet_give_the_cabinets_box() {
+        // A 0.6 x 0.55 x 1.8 m cabinet turned by 0.5 rad, seen from its front and one side: only
+        // those two faces have points (their principal axis is the L's diagonal, no box axis).
+        let truth = OrientedBox {
+            centre: DVec3::new(1.0, 2.0, 0.9),
+            size: DVec3::new(0.6, 0.55, 1.8),
+            yaw: 0.5,
+        };
+        let (c, s) = (truth.yaw.cos(), truth.yaw.sin());
+        let world = |u: f64, v: f64, z: f64| {
+            Vec3::new(
+                (truth.centre.x + c * u - s * v) as f32,
+                (truth.centre.y + s * u + c * v) as f32,
+                z as f32,
+            )
+        };
+        let mut points = Vec::new();
+        for k in 0..=36 {
+            let z = k as f64 * 0.05;
+            for i in 0..=30 {
+                points.push(world(-0.3 + i as f64 * 0.02, -0.275, z)); // front
+            }
+            for j in 0..=27 {
+                points.push(world(0.3, -0.275 + j as f64 * 0.02, z)); // side
+            }
+        }
+        let fitted = OrientedBox::fit(&points, 0.0);
+        assert!(fitted.iou(&truth) > 0.9, "{fitted:?}");
     }
 
     #[test]
