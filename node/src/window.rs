@@ -11,10 +11,13 @@ use std::collections::VecDeque;
 use serde::{Deserialize, Serialize};
 
 use crate::frame::{Keyframe, SyncedFrame, WindowInstance, WindowView};
+use crate::graph::{FusionReport, GraphError, SceneMap};
 use crate::group::cleaning::{
     drop_support_bleed, floor_height, flying_pixels, split_components, CleaningParams,
 };
-use crate::group::semantics::{prototypes, LabelledView, SemanticsSection, Vocabulary};
+use crate::group::semantics::{
+    prototypes, LabelledView, SemanticsSection, Vocabulary, OTHER_PHRASE,
+};
 use crate::group::{group, GroupError, GroupingParams};
 use crate::model::manifest::InputMode;
 use crate::model::reconstruction::{
@@ -166,6 +169,7 @@ pub fn window_pass(
     pass_with_cache(
         model,
         semantic.map(|m| (m, &mut no_cache)),
+        None,
         frames,
         grouping,
     )
@@ -281,10 +285,13 @@ fn window_features(
     (features, cached)
 }
 
-/// [`window_pass`] with a cache of keyframe features computed ahead (see [`FeatureCache`]).
+/// [`window_pass`] with a cache of keyframe features computed ahead (see [`FeatureCache`]); with
+/// the `vocabulary` that names instances, the points of an object's instance that the semantic
+/// model calls another object become noise ([`drop_other_objects`]).
 pub fn pass_with_cache(
     model: &mut ReconstructionModel,
     semantic: Option<(&mut SemanticModel, &mut FeatureCache)>,
+    vocabulary: Option<&Vocabulary>,
     frames: &[SyncedFrame],
     grouping: &GroupingParams,
 ) -> Result<WindowOutput, WindowError> {
@@ -386,6 +393,17 @@ pub fn pass_with_cache(
             Err(e) => semantics_error = Some(e.to_string()),
             Ok(features) => {
                 let size = (w, h);
+                // Instances of one kind of thing: what the semantic model calls another object
+                // leaves an object's instance (a chair's legs grouped with the table they touch).
+                if let Some(vocabulary) = vocabulary {
+                    let classes = point_classes(&features, vocabulary, &pixels, size);
+                    let other = vocabulary
+                        .phrases
+                        .iter()
+                        .position(|p| p == OTHER_PHRASE)
+                        .unwrap_or(vocabulary.phrases.len()) as u32;
+                    drop_other_objects(&mut labels, &classes, clusters, other);
+                }
                 match instance_prototypes_of(&features, &pixels, &labels, size, clusters) {
                     Ok(found) => instance_prototypes = found,
                     Err(e) => semantics_error = Some(e.to_string()),
@@ -465,6 +483,95 @@ pub fn pass_with_cache(
         pixel_instances,
         times,
     })
+}
+
+/// Drop from each object cluster (most of its classified points an object class, not `other`)
+/// the points the semantic model calls another object class: a chair's legs the grouping gave to
+/// the table they touch.
+fn drop_other_objects(labels: &mut [i32], classes: &[Option<u32>], clusters: usize, other: u32) {
+    let mut votes: Vec<rustc_hash::FxHashMap<u32, usize>> = vec![Default::default(); clusters];
+    for (label, class) in labels.iter().zip(classes) {
+        if let (Ok(k), Some(c)) = (usize::try_from(*label), class) {
+            if let Some(v) = votes.get_mut(k) {
+                *v.entry(*c).or_default() += 1;
+            }
+        }
+    }
+    let majority: Vec<Option<u32>> = votes
+        .iter()
+        .map(|v| {
+            let best = v
+                .iter()
+                .max_by_key(|(c, n)| (**n, std::cmp::Reverse(**c)))?;
+            (*best.0 != other).then_some(*best.0)
+        })
+        .collect();
+    for (label, class) in labels.iter_mut().zip(classes) {
+        let (Ok(k), Some(c)) = (usize::try_from(*label), class) else {
+            continue;
+        };
+        if let Some(Some(m)) = majority.get(k) {
+            if c != m && *c != other {
+                *label = -1;
+            }
+        }
+    }
+}
+
+/// The semantic class (best vocabulary phrase by cosine) of each lifted point, read at the
+/// feature pixel its model pixel falls in (`pixels`: each point's model pixel, view-major, of
+/// `size` model images); `None` where no feature or no class is there.
+fn point_classes(
+    features: &[DenseFeatures],
+    vocabulary: &Vocabulary,
+    pixels: &[usize],
+    (width, height): (usize, usize),
+) -> Vec<Option<u32>> {
+    let norms: Vec<f32> = vocabulary
+        .embeddings
+        .iter()
+        .map(|e| e.iter().map(|v| v * v).sum::<f32>().sqrt())
+        .collect();
+    // One class per feature pixel of each view, then looked up per point. The features are
+    // channel-planar: dot products accumulate plane by plane (contiguous, vectorised).
+    let classes: Vec<Vec<Option<u32>>> = features
+        .iter()
+        .map(|f| {
+            let plane = f.width * f.height;
+            let mut best: Vec<Option<(u32, f32)>> = vec![None; plane];
+            let mut dots = vec![0.0f32; plane];
+            for (k, (e, norm)) in vocabulary.embeddings.iter().zip(&norms).enumerate() {
+                if e.len() != f.channels || *norm <= 0.0 || f.data.len() < f.channels * plane {
+                    continue;
+                }
+                dots.fill(0.0);
+                for (c, &weight) in e.iter().enumerate() {
+                    let channel = &f.data[c * plane..(c + 1) * plane];
+                    for (d, v) in dots.iter_mut().zip(channel) {
+                        *d += weight * v;
+                    }
+                }
+                for (b, &dot) in best.iter_mut().zip(&dots) {
+                    let score = dot / norm;
+                    if score.is_finite() && b.is_none_or(|(_, s)| score > s) {
+                        *b = Some((k as u32, score));
+                    }
+                }
+            }
+            best.into_iter().map(|b| b.map(|(k, _)| k)).collect()
+        })
+        .collect();
+    let plane = (width * height).max(1);
+    pixels
+        .iter()
+        .map(|&pixel| {
+            let (view, at) = (pixel / plane, pixel % plane);
+            let (f, of_view) = (features.get(view)?, classes.get(view)?);
+            let (x, y) = (at % width.max(1), at / width.max(1));
+            let (fx, fy) = (x * f.width / width.max(1), y * f.height / height.max(1));
+            of_view.get(fy * f.width + fx).copied().flatten()
+        })
+        .collect()
 }
 
 /// Prototypes of `clusters` instances (§5.5): the masked mean of the views' semantic features,
@@ -622,11 +729,27 @@ impl WindowModels {
         self.features.prepare(self.semantic.as_mut()?, frame)
     }
 
+    /// Fuse a window's instances into `map`; with a vocabulary, fragments of one object (touching,
+    /// alike, named alike) fold together afterwards ([`SceneMap::fold_fragments`]).
+    pub fn fuse(
+        &self,
+        map: &mut SceneMap,
+        instances: Vec<WindowInstance>,
+        views: &[WindowView],
+        stamp_nanos: i64,
+    ) -> Result<FusionReport, GraphError> {
+        match &self.vocabulary {
+            Some(v) => map.fuse_named(instances, views, stamp_nanos, |a, b| v.same_kind(a, b)),
+            None => map.fuse(instances, views, stamp_nanos),
+        }
+    }
+
     /// One window pass over `frames`.
     pub fn pass(&mut self, frames: &[SyncedFrame]) -> Result<WindowOutput, WindowError> {
         pass_with_cache(
             &mut self.reconstruction,
             self.semantic.as_mut().map(|m| (m, &mut self.features)),
+            self.vocabulary.as_ref(),
             frames,
             &self.grouping,
         )
@@ -648,6 +771,49 @@ mod tests {
 
     fn key(camera: &str, stamp: i64) -> FrameKey {
         (camera.to_owned(), stamp)
+    }
+
+    #[test]
+    fn points_another_object_class_leave_an_object_instance_and_structure_keeps_all() {
+        let (chair, table, other) = (0, 1, 2);
+        let mut labels = vec![0, 0, 0, 0, 0, 1, 1, 1, 1, -1];
+        let classes = [
+            Some(chair),
+            Some(chair),
+            Some(chair),
+            Some(table), // a table point in the chair: dropped
+            Some(other), // floor under the chair: not an object, stays
+            Some(other),
+            Some(other),
+            Some(chair), // the room's cluster keeps everything
+            None,
+            Some(table),
+        ];
+        drop_other_objects(&mut labels, &classes, 2, other);
+        assert_eq!(labels, [0, 0, 0, -1, 0, 1, 1, 1, 1, -1]);
+        // No classes at all, or labels beyond `clusters`, change nothing.
+        let mut unknown = vec![0, 0, 3];
+        drop_other_objects(&mut unknown, &[None, None, Some(1)], 1, other);
+        assert_eq!(unknown, [0, 0, 3]);
+    }
+
+    #[test]
+    fn each_point_takes_the_class_of_the_feature_pixel_it_falls_in() {
+        // One view of 4 x 2 model pixels, features of 2 x 1 pixels in 2 channels: the left
+        // feature pixel points at "chair", the right one at "table".
+        let features = DenseFeatures {
+            width: 2,
+            height: 1,
+            channels: 2,
+            data: vec![1.0, 0.1, 0.1, 1.0],
+        };
+        let vocabulary = Vocabulary {
+            phrases: vec!["chair".into(), "table".into()],
+            embeddings: vec![vec![1.0, 0.0], vec![0.0, 1.0]],
+            temperature: 0.05,
+        };
+        let classes = point_classes(&[features], &vocabulary, &[0, 1, 2, 7, 99], (4, 2));
+        assert_eq!(classes, [Some(0), Some(0), Some(1), Some(1), None]);
     }
 
     #[test]

@@ -448,6 +448,62 @@ fn a_part_inside_a_larger_instance_of_the_same_kind_is_folded_even_at_low_box_io
 }
 
 #[test]
+fn touching_fragments_named_alike_fold_and_touching_objects_of_two_kinds_do_not() {
+    // A bed the window cut in two: its mattress and its headboard touch along a seam, and they
+    // share nothing else (box IoU 0), so overlap and parts never fold them.
+    let bed = |x: f32, half_x: f32| WindowInstance {
+        gaussians: cuboid(Vec3::new(x, 0.0, 0.0), Vec3::new(half_x, 0.5, 0.3)),
+        prototype: TABLE.to_vec(),
+        support: 300,
+    };
+    let same_name = |a: &[f32], b: &[f32]| a == b;
+    let mut map = SceneMap::new(FusionParams::default());
+    let report = map
+        .fuse_named(vec![bed(0.0, 0.5), bed(0.6, 0.1)], &[], 1, same_name)
+        .unwrap();
+    assert_eq!(map.instances.len(), 1, "{:?}", report);
+    assert_eq!(
+        report.absorbed,
+        [("inst_000002".to_owned(), "inst_000001".to_owned())]
+    );
+    assert_eq!(
+        report.assigned,
+        ["inst_000001", "inst_000001"],
+        "ids follow the fold"
+    );
+    // Plain fusion keeps them apart (what the fold adds).
+    let mut plain = SceneMap::new(FusionParams::default());
+    plain
+        .fuse(vec![bed(0.0, 0.5), bed(0.6, 0.1)], &[], 1)
+        .unwrap();
+    assert_eq!(plain.instances.len(), 2);
+    // A chair touching the table is another kind: it stays.
+    let chair = WindowInstance {
+        gaussians: cuboid(Vec3::new(0.75, 0.0, 0.0), Vec3::splat(0.15)),
+        prototype: CHAIR.to_vec(),
+        support: 100,
+    };
+    map.fuse_named(vec![chair], &[], 2, same_name).unwrap();
+    assert_eq!(map.instances.len(), 2);
+    // Two pieces of one kind a metre apart do not touch: two objects.
+    let mut apart = SceneMap::new(FusionParams::default());
+    apart
+        .fuse_named(vec![bed(0.0, 0.5), bed(2.0, 0.3)], &[], 1, same_name)
+        .unwrap();
+    assert_eq!(apart.instances.len(), 2);
+    // Without semantics nothing is "alike": nothing folds.
+    let mut unnamed = SceneMap::new(FusionParams::default());
+    let bare = |x: f32, half_x: f32| WindowInstance {
+        prototype: Vec::new(),
+        ..bed(x, half_x)
+    };
+    unnamed
+        .fuse_named(vec![bare(0.0, 0.5), bare(0.6, 0.1)], &[], 1, |_, _| true)
+        .unwrap();
+    assert_eq!(unnamed.instances.len(), 2);
+}
+
+#[test]
 fn a_window_that_splits_an_object_puts_every_part_into_its_one_instance() {
     // The map holds a table; the next window gives its top and one leg as two instances (a
     // window's grouping often does). Both parts are that table: no new id, nothing born.

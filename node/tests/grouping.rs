@@ -319,6 +319,25 @@ fn hypotheses_rank_phrases_by_prototype_cosine() {
 }
 
 #[test]
+fn same_kind_means_the_same_best_name_and_never_structure() {
+    let v = vocabulary(0.05);
+    assert!(
+        v.same_kind(&[0.9, 0.1, 0.0], &[0.7, 0.3, 0.1]),
+        "two chairs"
+    );
+    assert!(
+        !v.same_kind(&[0.9, 0.1, 0.0], &[0.1, 0.9, 0.0]),
+        "a chair, a table"
+    );
+    assert!(
+        !v.same_kind(&[0.0, 0.1, 0.9], &[0.1, 0.0, 0.9]),
+        "walls are no kind"
+    );
+    assert!(!v.same_kind(&[], &[0.9, 0.1, 0.0]), "no semantics");
+    assert!(!v.same_kind(&[0.0, 0.0, 0.0], &[0.0, 0.0, 0.0]));
+}
+
+#[test]
 fn hypotheses_of_zero_or_empty_prototypes_are_empty() {
     assert!(vocabulary(0.05).hypotheses(&[0.0, 0.0, 0.0], 3).is_empty());
     assert!(vocabulary(0.05).hypotheses(&[], 3).is_empty());

@@ -202,6 +202,7 @@ fn features_computed_ahead_give_the_window_the_same_instances_and_prototypes() {
     let ahead = pass_with_cache(
         &mut reconstruction,
         Some((&mut semantic, &mut cache)),
+        None,
         &frames,
         &grouping,
     )

@@ -237,7 +237,7 @@ pub fn replay_scene_with(
                 .collect();
             let mut times = output.times;
             let report = times.time(Stage::Fusion, || {
-                map.fuse(output.instances, &output.views, stamp)
+                models.fuse(&mut map, output.instances, &output.views, stamp)
             })?;
             times.0.push((Stage::Window, times.total()));
             // The work done ahead for this window's keyframes, outside its latency.

@@ -49,6 +49,10 @@ struct Footprint {
 /// when at least this share of its points lies on it.
 const PART_COVERED: f32 = 0.5;
 
+/// Two instances touch when at least this share of the smaller one's points has a point of the
+/// other within the overlap radius (a seam, not an overlap).
+const FRAGMENT_TOUCH: f32 = 0.02;
+
 /// At most this many points per instance enter the overlap test (an even stride).
 const ASSOCIATION_POINTS: usize = 2048;
 
@@ -407,6 +411,89 @@ impl SceneMap {
             self.keyframes.pop_front();
         }
         Ok(report)
+    }
+
+    /// [`SceneMap::fuse`], then [`SceneMap::fold_fragments`] with `same_kind`; the report's ids
+    /// follow the folds (a window instance assigned to a fragment that folded is reported with
+    /// the instance it went into).
+    pub fn fuse_named(
+        &mut self,
+        window: Vec<WindowInstance>,
+        views: &[WindowView],
+        stamp_nanos: i64,
+        same_kind: impl Fn(&[f32], &[f32]) -> bool,
+    ) -> Result<FusionReport, GraphError> {
+        let mut report = self.fuse(window, views, stamp_nanos)?;
+        let folded = self.fold_fragments(same_kind);
+        for (absorbed, survivor) in &folded {
+            for id in report.assigned.iter_mut().filter(|id| *id == absorbed) {
+                id.clone_from(survivor);
+            }
+        }
+        report.absorbed.extend(folded);
+        Ok(report)
+    }
+
+    /// Fold fragments of one object into the oldest of them: instances that touch (at least
+    /// `FRAGMENT_TOUCH` of the smaller one's points lie next to the other's), have similar
+    /// prototypes and are, by `same_kind` (the caller's vocabulary: the same best name, not
+    /// structure), the same kind of thing. A bed the window grouping cut into its frame, mattress
+    /// and headboard becomes one bed again; two chairs that touch stay two unless their
+    /// prototypes and names agree, and a chair against a table never folds into it. Returns
+    /// (absorbed, survivor) id pairs.
+    pub fn fold_fragments(
+        &mut self,
+        same_kind: impl Fn(&[f32], &[f32]) -> bool,
+    ) -> Vec<(String, String)> {
+        let p = self.params;
+        let n = self.instances.len();
+        let mut keep = vec![true; n];
+        let mut footprints: Vec<Option<Footprint>> = (0..n).map(|_| None).collect();
+        let mut order: Vec<usize> = (0..n).collect();
+        order.sort_by_key(|&i| (self.instances[i].first_seen_nanos, i));
+        let mut folded = Vec::new();
+        for (position, &a) in order.iter().enumerate() {
+            if !keep[a] {
+                continue;
+            }
+            for &b in &order[position + 1..] {
+                if !keep[b] {
+                    continue;
+                }
+                let (pa, pb) = (&self.instances[a].prototype, &self.instances[b].prototype);
+                if pa.is_empty()
+                    || pb.is_empty()
+                    || cosine(pa, pb) < p.duplicate_similarity
+                    || !same_kind(pa, pb)
+                {
+                    continue;
+                }
+                for k in [a, b] {
+                    if footprints[k].is_none() {
+                        footprints[k] = Some(Footprint::new(&self.instances[k].gaussians, p.voxel));
+                    }
+                }
+                let touching = match (&footprints[a], &footprints[b]) {
+                    (Some(fa), Some(fb)) => {
+                        fa.overlap(fb, 1.5 * fa.spacing.max(fb.spacing)) >= FRAGMENT_TOUCH
+                    }
+                    _ => false,
+                };
+                if touching {
+                    let absorbed = self.instances[b].clone();
+                    self.instances[a].absorb(&absorbed, p);
+                    footprints[a] = None;
+                    keep[b] = false;
+                    folded.push((absorbed.id, self.instances[a].id.clone()));
+                }
+            }
+        }
+        let mut index = 0;
+        self.instances.retain(|_| {
+            index += 1;
+            keep[index - 1]
+        });
+        folded
     }
 
     /// Fold instances that are one object (similar prototypes, overlapping boxes) into the oldest

@@ -247,6 +247,15 @@ impl Vocabulary {
             .is_some_and(|(phrase, _)| phrase == OTHER_PHRASE)
     }
 
+    /// Whether two prototypes name the same object class (the same best phrase, not structure).
+    pub fn same_kind(&self, a: &[f32], b: &[f32]) -> bool {
+        let best = |p: &[f32]| self.hypotheses(p, 1).into_iter().next().map(|(n, _)| n);
+        match (best(a), best(b)) {
+            (Some(x), Some(y)) => x == y && x != OTHER_PHRASE,
+            _ => false,
+        }
+    }
+
     /// p(phrase | prototype) for every phrase of the vocabulary, in its order: a softmax of
     /// cosine / τ. Empty when the prototype is empty or zero, or the vocabulary is.
     pub fn probabilities(&self, prototype: &[f32]) -> Vec<f32> {

@@ -158,7 +158,7 @@ pub(super) fn start_window_worker(
                     let found = output.instances.len();
                     let mut times = output.times;
                     let fused = times.time(Stage::Fusion, || {
-                        s.map.fuse(output.instances, &output.views, stamp)
+                        models.fuse(&mut s.map, output.instances, &output.views, stamp)
                     });
                     match fused {
                         Ok(report) => {
