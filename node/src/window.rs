@@ -13,7 +13,8 @@ use serde::{Deserialize, Serialize};
 use crate::frame::{Keyframe, SyncedFrame, WindowInstance, WindowView};
 use crate::graph::{FusionReport, GraphError, SceneMap};
 use crate::group::cleaning::{
-    drop_support_bleed, floor_height, flying_pixels, split_components, CleaningParams,
+    drop_other_objects, drop_support_bleed, floor_height, flying_pixels, split_components,
+    CleaningParams,
 };
 use crate::group::semantics::{
     prototypes, LabelledView, SemanticsSection, Vocabulary, OTHER_PHRASE,
@@ -485,39 +486,6 @@ pub fn pass_with_cache(
     })
 }
 
-/// Drop from each object cluster (most of its classified points an object class, not `other`)
-/// the points the semantic model calls another object class: a chair's legs the grouping gave to
-/// the table they touch.
-fn drop_other_objects(labels: &mut [i32], classes: &[Option<u32>], clusters: usize, other: u32) {
-    let mut votes: Vec<rustc_hash::FxHashMap<u32, usize>> = vec![Default::default(); clusters];
-    for (label, class) in labels.iter().zip(classes) {
-        if let (Ok(k), Some(c)) = (usize::try_from(*label), class) {
-            if let Some(v) = votes.get_mut(k) {
-                *v.entry(*c).or_default() += 1;
-            }
-        }
-    }
-    let majority: Vec<Option<u32>> = votes
-        .iter()
-        .map(|v| {
-            let best = v
-                .iter()
-                .max_by_key(|(c, n)| (**n, std::cmp::Reverse(**c)))?;
-            (*best.0 != other).then_some(*best.0)
-        })
-        .collect();
-    for (label, class) in labels.iter_mut().zip(classes) {
-        let (Ok(k), Some(c)) = (usize::try_from(*label), class) else {
-            continue;
-        };
-        if let Some(Some(m)) = majority.get(k) {
-            if c != m && *c != other {
-                *label = -1;
-            }
-        }
-    }
-}
-
 /// The semantic class (best vocabulary phrase by cosine) of each lifted point, read at the
 /// feature pixel its model pixel falls in (`pixels`: each point's model pixel, view-major, of
 /// `size` model images); `None` where no feature or no class is there.
@@ -771,30 +739,6 @@ mod tests {
 
     fn key(camera: &str, stamp: i64) -> FrameKey {
         (camera.to_owned(), stamp)
-    }
-
-    #[test]
-    fn points_another_object_class_leave_an_object_instance_and_structure_keeps_all() {
-        let (chair, table, other) = (0, 1, 2);
-        let mut labels = vec![0, 0, 0, 0, 0, 1, 1, 1, 1, -1];
-        let classes = [
-            Some(chair),
-            Some(chair),
-            Some(chair),
-            Some(table), // a table point in the chair: dropped
-            Some(other), // floor under the chair: not an object, stays
-            Some(other),
-            Some(other),
-            Some(chair), // the room's cluster keeps everything
-            None,
-            Some(table),
-        ];
-        drop_other_objects(&mut labels, &classes, 2, other);
-        assert_eq!(labels, [0, 0, 0, -1, 0, 1, 1, 1, 1, -1]);
-        // No classes at all, or labels beyond `clusters`, change nothing.
-        let mut unknown = vec![0, 0, 3];
-        drop_other_objects(&mut unknown, &[None, None, Some(1)], 1, other);
-        assert_eq!(unknown, [0, 0, 3]);
     }
 
     #[test]

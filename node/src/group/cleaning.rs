@@ -166,6 +166,44 @@ pub fn split_components(
     next as usize
 }
 
+/// Drop from each object cluster (most of its classified points an object class, not `other`)
+/// the points the semantic model calls another object class: a chair's legs the grouping gave to
+/// the table they touch.
+pub fn drop_other_objects(
+    labels: &mut [i32],
+    classes: &[Option<u32>],
+    clusters: usize,
+    other: u32,
+) {
+    let mut votes: Vec<rustc_hash::FxHashMap<u32, usize>> = vec![Default::default(); clusters];
+    for (label, class) in labels.iter().zip(classes) {
+        if let (Ok(k), Some(c)) = (usize::try_from(*label), class) {
+            if let Some(v) = votes.get_mut(k) {
+                *v.entry(*c).or_default() += 1;
+            }
+        }
+    }
+    let majority: Vec<Option<u32>> = votes
+        .iter()
+        .map(|v| {
+            let best = v
+                .iter()
+                .max_by_key(|(c, n)| (**n, std::cmp::Reverse(**c)))?;
+            (*best.0 != other).then_some(*best.0)
+        })
+        .collect();
+    for (label, class) in labels.iter_mut().zip(classes) {
+        let (Ok(k), Some(c)) = (usize::try_from(*label), class) else {
+            continue;
+        };
+        if let Some(Some(m)) = majority.get(k) {
+            if c != m && *c != other {
+                *label = -1;
+            }
+        }
+    }
+}
+
 /// The floor's height in a window's points: the lowest height band (2 cm) holding at least a
 /// fifth as many points as the fullest band (and 0.5 % of all), refined to the median height of
 /// the points around it. Floors, and the walls that stand on them, begin there; strays below it
@@ -468,6 +506,30 @@ mod tests {
         );
         assert_eq!(labels, [0, -1, 3, 0]);
         assert_eq!(drop_support_bleed(&mut [], &[], 0, 0.0, 0.05, 0.05), 0);
+    }
+
+    #[test]
+    fn points_another_object_class_leave_an_object_instance_and_structure_keeps_all() {
+        let (chair, table, other) = (0, 1, 2);
+        let mut labels = vec![0, 0, 0, 0, 0, 1, 1, 1, 1, -1];
+        let classes = [
+            Some(chair),
+            Some(chair),
+            Some(chair),
+            Some(table), // a table point in the chair: dropped
+            Some(other), // floor under the chair: not an object, stays
+            Some(other),
+            Some(other),
+            Some(chair), // the room's cluster keeps everything
+            None,
+            Some(table),
+        ];
+        drop_other_objects(&mut labels, &classes, 2, other);
+        assert_eq!(labels, [0, 0, 0, -1, 0, 1, 1, 1, 1, -1]);
+        // No classes at all, or labels beyond `clusters`, change nothing.
+        let mut unknown = vec![0, 0, 3];
+        drop_other_objects(&mut unknown, &[None, None, Some(1)], 1, other);
+        assert_eq!(unknown, [0, 0, 3]);
     }
 
     #[test]
