@@ -119,6 +119,28 @@ impl Footprint {
     }
 }
 
+/// Instances' point footprints, built on first use.
+struct Footprints {
+    voxel: f32,
+    built: Vec<Option<Footprint>>,
+}
+
+impl Footprints {
+    /// The share of the smaller of instances `a` and `b` lying on the other (see
+    /// [`Footprint::overlap`]), their footprints built if they are not yet.
+    fn overlap(&mut self, instances: &[Instance], a: usize, b: usize) -> f32 {
+        for k in [a, b] {
+            if self.built[k].is_none() {
+                self.built[k] = Some(Footprint::new(&instances[k].gaussians, self.voxel));
+            }
+        }
+        match (&self.built[a], &self.built[b]) {
+            (Some(fa), Some(fb)) => fa.overlap(fb, 1.5 * fa.spacing.max(fb.spacing)),
+            _ => 0.0,
+        }
+    }
+}
+
 /// Points hashed into cells of one radius, for "nearest point within the radius" queries.
 struct PointGrid<'a> {
     radius: f32,
@@ -446,9 +468,41 @@ impl SceneMap {
         same_kind: impl Fn(&[f32], &[f32]) -> bool,
     ) -> Vec<(String, String)> {
         let p = self.params;
+        let mut keep = vec![true; self.instances.len()];
+        let folded = self.fold_pairs(&mut keep, |instances, footprints, a, b| {
+            let (pa, pb) = (&instances[a].prototype, &instances[b].prototype);
+            if pa.is_empty()
+                || pb.is_empty()
+                || cosine(pa, pb) < p.duplicate_similarity
+                || !same_kind(pa, pb)
+            {
+                return false;
+            }
+            footprints.overlap(instances, a, b) >= FRAGMENT_TOUCH
+        });
+        let mut index = 0;
+        self.instances.retain(|_| {
+            index += 1;
+            keep[index - 1]
+        });
+        folded
+    }
+
+    /// Every pair of live instances, oldest first (so everything folds into the instance the
+    /// user saw first): where `one_object` says so, the younger is absorbed into the older and
+    /// marked dead in `keep`. Point footprints are built only when `one_object` asks for them, and
+    /// again after their instance absorbs another. Returns (absorbed, survivor) id pairs.
+    fn fold_pairs(
+        &mut self,
+        keep: &mut [bool],
+        mut one_object: impl FnMut(&[Instance], &mut Footprints, usize, usize) -> bool,
+    ) -> Vec<(String, String)> {
+        let p = self.params;
         let n = self.instances.len();
-        let mut keep = vec![true; n];
-        let mut footprints: Vec<Option<Footprint>> = (0..n).map(|_| None).collect();
+        let mut footprints = Footprints {
+            voxel: p.voxel,
+            built: (0..n).map(|_| None).collect(),
+        };
         let mut order: Vec<usize> = (0..n).collect();
         order.sort_by_key(|&i| (self.instances[i].first_seen_nanos, i));
         let mut folded = Vec::new();
@@ -457,42 +511,15 @@ impl SceneMap {
                 continue;
             }
             for &b in &order[position + 1..] {
-                if !keep[b] {
-                    continue;
-                }
-                let (pa, pb) = (&self.instances[a].prototype, &self.instances[b].prototype);
-                if pa.is_empty()
-                    || pb.is_empty()
-                    || cosine(pa, pb) < p.duplicate_similarity
-                    || !same_kind(pa, pb)
-                {
-                    continue;
-                }
-                for k in [a, b] {
-                    if footprints[k].is_none() {
-                        footprints[k] = Some(Footprint::new(&self.instances[k].gaussians, p.voxel));
-                    }
-                }
-                let touching = match (&footprints[a], &footprints[b]) {
-                    (Some(fa), Some(fb)) => {
-                        fa.overlap(fb, 1.5 * fa.spacing.max(fb.spacing)) >= FRAGMENT_TOUCH
-                    }
-                    _ => false,
-                };
-                if touching {
+                if keep[b] && one_object(&self.instances, &mut footprints, a, b) {
                     let absorbed = self.instances[b].clone();
                     self.instances[a].absorb(&absorbed, p);
-                    footprints[a] = None;
+                    footprints.built[a] = None;
                     keep[b] = false;
                     folded.push((absorbed.id, self.instances[a].id.clone()));
                 }
             }
         }
-        let mut index = 0;
-        self.instances.retain(|_| {
-            index += 1;
-            keep[index - 1]
-        });
         folded
     }
 
@@ -502,51 +529,14 @@ impl SceneMap {
     fn fold_duplicates(&mut self, keep: &mut [bool]) -> Vec<(String, String)> {
         let p = self.params;
         let boxes: Vec<_> = self.instances.iter().map(|i| i.oriented_box()).collect();
-        let mut folded = Vec::new();
-        let n = self.instances.len();
-        // Point footprints only where boxes alone do not decide, each built once (again after its
-        // instance absorbs another).
-        let mut footprints: Vec<Option<Footprint>> = (0..n).map(|_| None).collect();
-        // Oldest first, so every duplicate folds into the instance the user saw first.
-        let mut order: Vec<usize> = (0..n).collect();
-        order.sort_by_key(|&i| (self.instances[i].first_seen_nanos, i));
-        for (position, &a) in order.iter().enumerate() {
-            if !keep[a] {
-                continue;
-            }
-            for &b in &order[position + 1..] {
-                if !keep[b] {
-                    continue;
-                }
-                let (pa, pb) = (&self.instances[a].prototype, &self.instances[b].prototype);
-                let similar =
-                    !pa.is_empty() && !pb.is_empty() && cosine(pa, pb) >= p.duplicate_similarity;
-                if !similar {
-                    continue;
-                }
-                let duplicate = boxes[a].iou(&boxes[b]) >= p.duplicate_iou || {
-                    for k in [a, b] {
-                        if footprints[k].is_none() {
-                            footprints[k] =
-                                Some(Footprint::new(&self.instances[k].gaussians, p.voxel));
-                        }
-                    }
-                    match (&footprints[a], &footprints[b]) {
-                        (Some(fa), Some(fb)) => {
-                            fa.overlap(fb, 1.5 * fa.spacing.max(fb.spacing)) >= 0.5
-                        }
-                        _ => false,
-                    }
-                };
-                if duplicate {
-                    let absorbed = self.instances[b].clone();
-                    self.instances[a].absorb(&absorbed, p);
-                    footprints[a] = None;
-                    keep[b] = false;
-                    folded.push((absorbed.id, self.instances[a].id.clone()));
-                }
-            }
-        }
-        folded
+        self.fold_pairs(keep, |instances, footprints, a, b| {
+            let (pa, pb) = (&instances[a].prototype, &instances[b].prototype);
+            let similar =
+                !pa.is_empty() && !pb.is_empty() && cosine(pa, pb) >= p.duplicate_similarity;
+            // Point footprints only where boxes alone do not decide.
+            similar
+                && (boxes[a].iou(&boxes[b]) >= p.duplicate_iou
+                    || footprints.overlap(instances, a, b) >= 0.5)
+        })
     }
 }

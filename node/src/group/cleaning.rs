@@ -433,17 +433,21 @@ mod tests {
         assert!(everything.size.x > 0.6, "without the step it was not");
     }
 
+    /// A 4 x 4 m floor at height `z` sampled every 5 cm, and a 2.4 m wall standing on it at
+    /// y = 4 m: 6,400 floor points, then 3,840 wall points.
+    fn floor_and_wall(z: f32) -> Vec<Vec3> {
+        let floor =
+            (0..80 * 80).map(|i| Vec3::new((i % 80) as f32 * 0.05, (i / 80) as f32 * 0.05, z));
+        let wall = (0..80 * 48)
+            .map(|i| Vec3::new((i % 80) as f32 * 0.05, 4.0, z + (i / 80) as f32 * 0.05));
+        floor.chain(wall).collect()
+    }
+
     #[test]
     fn the_floor_is_the_lowest_dense_height_not_a_stray_below_it() {
         // A 4 x 4 m floor at 0.1 m, a wall on it up to 2.5 m, a table top at 0.75 m, and a few
         // strays 30 cm under the floor (a noisy depth pixel lifts there).
-        let mut points: Vec<Vec3> = (0..80 * 80)
-            .map(|i| Vec3::new((i % 80) as f32 * 0.05, (i / 80) as f32 * 0.05, 0.1))
-            .collect();
-        points.extend(
-            (0..80 * 48)
-                .map(|i| Vec3::new((i % 80) as f32 * 0.05, 4.0, 0.1 + (i / 80) as f32 * 0.05)),
-        );
+        let mut points = floor_and_wall(0.1);
         points.extend((0..400).map(|i| Vec3::new(1.0 + (i % 20) as f32 * 0.04, 1.0, 0.75)));
         points.extend((0..5).map(|i| Vec3::new(i as f32, 0.0, -0.2)));
         points.push(Vec3::NAN);
@@ -463,12 +467,7 @@ mod tests {
     fn a_floor_with_its_wall_keeps_its_floor() {
         // The room's cluster: a 4 x 4 m floor and one wall on it. The wall alone is thin, so
         // without the furniture bound the floor would be "outside its footprint".
-        let mut points: Vec<Vec3> = (0..80 * 80)
-            .map(|i| Vec3::new((i % 80) as f32 * 0.05, (i / 80) as f32 * 0.05, 0.0))
-            .collect();
-        points.extend(
-            (0..80 * 48).map(|i| Vec3::new((i % 80) as f32 * 0.05, 4.0, (i / 80) as f32 * 0.05)),
-        );
+        let points = floor_and_wall(0.0);
         let mut labels = vec![0; points.len()];
         assert_eq!(
             drop_support_bleed(&mut labels, &points, 1, 0.0, 0.05, 0.05),
