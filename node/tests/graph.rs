@@ -165,6 +165,37 @@ fn instances_missed_where_visible_decay_and_die_but_occluded_ones_live() {
 }
 
 #[test]
+fn an_object_the_camera_still_sees_in_place_lives_although_no_window_groups_it() {
+    // A thin lamp shade 3 m ahead. Later windows see its surface where it is (depth 2.96 m, its
+    // front face) but their grouping gives no instance for it: no evidence that it is gone, so
+    // it is not missed. Only free space where it was (the wall at 6 m seen through it) kills it.
+    let params = FusionParams::default();
+    let mut map = SceneMap::new(params);
+    let shade = WindowInstance {
+        gaussians: cuboid(Vec3::new(3.0, 0.0, 0.0), Vec3::new(0.04, 0.2, 0.2)),
+        prototype: CHAIR.to_vec(),
+        support: 50,
+    };
+    map.fuse(vec![shade], &[view(DVec3::ZERO, 1, 3.0)], 1)
+        .unwrap();
+    for stamp in 2..10 {
+        let report = map
+            .fuse(Vec::new(), &[view(DVec3::ZERO, stamp, 2.96)], stamp)
+            .unwrap();
+        assert_eq!((report.missed, report.died), (0, 0), "window {stamp}");
+    }
+    assert_eq!(map.instances.len(), 1);
+    let mut died = 0;
+    for stamp in 10..14 {
+        died += map
+            .fuse(Vec::new(), &[view(DVec3::ZERO, stamp, 6.0)], stamp)
+            .unwrap()
+            .died;
+    }
+    assert_eq!((died, map.instances.len()), (1, 0));
+}
+
+#[test]
 fn caps_and_clearing_radius_bound_memory() {
     let params = FusionParams {
         max_gaussians_per_instance: 500,
@@ -501,6 +532,40 @@ fn touching_fragments_named_alike_fold_and_touching_objects_of_two_kinds_do_not(
         .fuse_named(vec![bare(0.0, 0.5), bare(0.6, 0.1)], &[], 1, |_, _| true)
         .unwrap();
     assert_eq!(unnamed.instances.len(), 2);
+}
+
+#[test]
+fn overlapping_instances_with_alike_features_but_two_names_are_not_duplicates() {
+    // A chair pushed under a table's edge: their boxes overlap and their pooled features are
+    // alike (cosine 0.92, above the duplicate threshold), but the vocabulary names one "chair"
+    // and the other "table". Without names they fold (what plain `fuse` does); with names they
+    // stay two objects, so the chair's id never comes to stand for the table.
+    let chair = WindowInstance {
+        gaussians: cuboid(Vec3::new(3.0, 0.0, 0.0), Vec3::new(0.25, 0.25, 0.4)),
+        prototype: vec![1.0, 0.3, 0.0],
+        support: 200,
+    };
+    let table = WindowInstance {
+        gaussians: cuboid(Vec3::new(3.2, 0.1, 0.1), Vec3::new(0.35, 0.3, 0.3)),
+        prototype: vec![1.0, 0.0, 0.3],
+        support: 300,
+    };
+    let named = |p: &[f32]| if p[1] > p[2] { "chair" } else { "table" };
+    let mut map = SceneMap::new(FusionParams::default());
+    let report = map
+        .fuse_named(vec![chair.clone(), table.clone()], &[], 1, |a, b| {
+            named(a) == named(b)
+        })
+        .unwrap();
+    assert!(report.absorbed.is_empty(), "{:?}", report.absorbed);
+    assert_eq!(map.instances.len(), 2);
+    let mut plain = SceneMap::new(FusionParams::default());
+    let report = plain.fuse(vec![chair, table], &[], 1).unwrap();
+    assert_eq!(
+        report.absorbed.len(),
+        1,
+        "the setup overlaps enough to fold"
+    );
 }
 
 #[test]

@@ -42,10 +42,11 @@ fn the_demo_scene_s_map_finds_its_objects_and_answers_its_referring_expressions(
     }
     let s = counts.summary();
     println!("{s:?}; windows: {:?}", windows.summary());
-    // Measured: 4 objects found of 5 (the lamp, 2,073 pixels over the orbit, is missed), 4
-    // instances listed, all of them objects; no room; chair names right.
+    // Measured: all 5 objects found (4 at IoU ≥ 0.5; the lamp at 0.49, named "box"), 6
+    // instances listed (one a piece of the wall corner); no room; chair names right.
     assert_eq!(s.room_instances, 0, "the room is structure, not an object");
-    assert!(s.recall_at_25 >= 0.6, "recall@0.25 {}", s.recall_at_25);
+    assert!(s.recall_at_25 >= 0.8, "recall@0.25 {}", s.recall_at_25);
+    assert_eq!(s.merged_objects, 0, "no instance stands for two objects");
     assert!(s.precision >= 0.75, "precision {}", s.precision);
     assert!(s.duplicate_rate <= 0.2, "duplicates {}", s.duplicate_rate);
     assert!(s.name_top1 >= 0.66, "names {}", s.name_top1);
@@ -67,11 +68,26 @@ fn the_demo_scene_s_map_finds_its_objects_and_answers_its_referring_expressions(
         switches <= 20.0,
         "{switches} identity switches per 100 sightings"
     );
+    // Identity as a user of the map meets it, fed by the models (not by ground truth): after
+    // every window, each object found in the map is found under the id it had before, and no
+    // id ever stood for two objects. Measured: 0 and 0 over 49 sightings (a chair's id came to
+    // stand for the table when fusion folded features alike but named apart).
+    let map_identity = windows.summary();
+    assert!(windows.map_sightings > 30, "{}", windows.map_sightings);
+    assert_eq!(
+        map_identity.map_ids_shared, 0,
+        "an id stood for two objects"
+    );
+    assert_eq!(
+        windows.map_id_changes, 0,
+        "an object was found under another id than before"
+    );
 
     // Referring on the same map, through the `Refer` service's handler (CDR in and out) with the
-    // scene's generated expressions; answers matched to objects by their boxes. Measured: 16 of
-    // 21 right; the lamp is not in the map, so the three questions about it are refused with the
-    // reason, and "the thing you can eat at" picks a chair.
+    // scene's generated expressions; answers matched to objects by their boxes. Measured: 17 of
+    // 21 right; the lamp is in the map but named "box", so "the lamp" and "the thing you can
+    // give light" pick the wall-corner piece and "put things on" picks the lamp; "the thing you
+    // can eat at" picks a chair.
     let map = std::mem::take(&mut run.map);
     let sim = groupforward_sim::simulation::Simulation::new(scene.clone()).unwrap();
     let views = held_out_views(&sim, &map);

@@ -267,12 +267,12 @@ fn csv_writer(path: &Path) -> Result<std::io::BufWriter<std::fs::File>> {
 
 fn markdown(total: &Summary, per_scene: &[(String, Summary, usize)]) -> String {
     let mut out = String::from(
-        "| scene | objects | listed | recall@0.25 | recall@0.5 | mean IoU | precision | duplicates | merged | names | room | id switches / 100 | window recall@0.25 | window precision |\n\
-         | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |\n",
+        "| scene | objects | listed | recall@0.25 | recall@0.5 | mean IoU | precision | duplicates | merged | names | room | id switches / 100 | map id changes / 100 | ids on two objects | window recall@0.25 | window precision |\n\
+         | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |\n",
     );
     let row = |name: &str, s: &Summary| {
         format!(
-            "| {name} | {} | {} | {:.1}% | {:.1}% | {:.3} | {:.1}% | {:.1}% | {} | {:.1}% | {} | {:.2} | {:.1}% | {:.1}% |\n",
+            "| {name} | {} | {} | {:.1}% | {:.1}% | {:.3} | {:.1}% | {:.1}% | {} | {:.1}% | {} | {:.2} | {:.2} | {} | {:.1}% | {:.1}% |\n",
             s.objects_scored,
             s.instances_listed,
             100.0 * s.recall_at_25,
@@ -284,6 +284,8 @@ fn markdown(total: &Summary, per_scene: &[(String, Summary, usize)]) -> String {
             100.0 * s.name_top1,
             s.room_instances,
             s.id_switches_per_100_sightings,
+            s.map_id_changes_per_100_sightings,
+            s.map_ids_shared,
             100.0 * s.window_recall_at_25,
             100.0 * s.window_precision,
         )

@@ -248,6 +248,7 @@ pub fn replay_scene_with(
             windows.push(WindowRecord {
                 objects: seen.into_iter().collect(),
                 instances: boxes.into_iter().zip(report.assigned).collect(),
+                map: listed_instances(&map, models),
             });
         }
     }
@@ -257,26 +258,7 @@ pub fn replay_scene_with(
             depth.add(&counters.depth);
         }
     }
-    let structure = |prototype: &[f32]| {
-        models
-            .vocabulary
-            .as_ref()
-            .is_some_and(|v| v.is_structure(prototype))
-    };
-    let instances: Vec<ListedInstance> = map
-        .instances
-        .iter()
-        .filter(|i| !structure(&i.prototype))
-        .map(|i| ListedInstance {
-            id: i.id.clone(),
-            name: models
-                .vocabulary
-                .as_ref()
-                .and_then(|v| v.hypotheses(&i.prototype, 1).into_iter().next())
-                .map_or(String::new(), |(name, _)| name),
-            bbox: i.oriented_box(),
-        })
-        .collect();
+    let instances = listed_instances(&map, models);
     Ok(SceneRun {
         scene: recorded.scene.clone(),
         room_area: recorded.room_area,
@@ -288,4 +270,21 @@ pub fn replay_scene_with(
         depth,
         map,
     })
+}
+
+/// The map's object list as the node publishes it: structure left out, each instance with its
+/// best name and its box.
+fn listed_instances(map: &SceneMap, models: &WindowModels) -> Vec<ListedInstance> {
+    let vocabulary = models.vocabulary.as_ref();
+    map.instances
+        .iter()
+        .filter(|i| !vocabulary.is_some_and(|v| v.is_structure(&i.prototype)))
+        .map(|i| ListedInstance {
+            id: i.id.clone(),
+            name: vocabulary
+                .and_then(|v| v.hypotheses(&i.prototype, 1).into_iter().next())
+                .map_or(String::new(), |(name, _)| name),
+            bbox: i.oriented_box(),
+        })
+        .collect()
 }

@@ -38,12 +38,14 @@ pub struct ListedInstance {
     pub bbox: OrientedBox,
 }
 
-/// One window: the objects its views saw (id, pixels) and its instances before fusion with the
-/// persistent id fusion gave each.
+/// One window: the objects its views saw (id, pixels), its instances before fusion with the
+/// persistent id fusion gave each, and the map's object list after the window's fusion (what a
+/// user holding an id sees).
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct WindowRecord {
     pub objects: Vec<(u16, u64)>,
     pub instances: Vec<(OrientedBox, String)>,
+    pub map: Vec<ListedInstance>,
 }
 
 /// What became of one object.
@@ -104,6 +106,12 @@ pub struct Counts {
     pub window_instances_true: u64,
     pub sightings: u64,
     pub id_switches: u64,
+    /// Map level, after each window: objects found in the map (IoU ≥ 0.25, one-to-one), the
+    /// times an object was found under another id than the last time, and the ids that stood
+    /// for more than one object over the trajectory.
+    pub map_sightings: u64,
+    pub map_id_changes: u64,
+    pub map_ids_shared: u64,
 }
 
 impl Counts {
@@ -128,6 +136,9 @@ impl Counts {
         self.window_instances_true += o.window_instances_true;
         self.sightings += o.sightings;
         self.id_switches += o.id_switches;
+        self.map_sightings += o.map_sightings;
+        self.map_id_changes += o.map_id_changes;
+        self.map_ids_shared += o.map_ids_shared;
     }
 
     pub fn summary(&self) -> Summary {
@@ -144,6 +155,9 @@ impl Counts {
             name_top1: ratio(self.names_correct as f64, self.found_25),
             room_instances: self.room_instances,
             id_switches_per_100_sightings: 100.0 * ratio(self.id_switches as f64, self.sightings),
+            map_id_changes_per_100_sightings: 100.0
+                * ratio(self.map_id_changes as f64, self.map_sightings),
+            map_ids_shared: self.map_ids_shared,
             mean_centre_error_m: ratio(self.centre_error_sum_m, self.found_25),
             size_ratio_geomean: ratio(self.size_ratio_log_sum, self.found_25).exp(),
             mean_iou: ratio(self.iou_sum, self.objects_scored),
@@ -167,6 +181,12 @@ pub struct Summary {
     pub name_top1: f64,
     pub room_instances: u64,
     pub id_switches_per_100_sightings: f64,
+    /// The same over the map after each window: an object found under another persistent id
+    /// than the last time it was found (a fold of its instance into an older one counts: the id
+    /// a user held is gone).
+    pub map_id_changes_per_100_sightings: f64,
+    /// Persistent ids that stood for two or more objects over the trajectory.
+    pub map_ids_shared: u64,
     pub mean_centre_error_m: f64,
     /// Geometric mean of instance over object box volume, over found objects (1 = right size).
     pub size_ratio_geomean: f64,
@@ -320,10 +340,39 @@ pub fn score_map(
 
 /// Score the windows of one scene: each window's instances against the objects it saw (at least
 /// `min_pixels` in the window's views), and the persistent id every sighting got. An identity
-/// switch is an object sighted under another id than at its previous sighting.
+/// switch is an object sighted under another id than at its previous sighting. Then the map
+/// after each window against the objects seen so far (at least `min_pixels` in all windows up
+/// to it): which id each object is found under, and which ids stood for two objects.
 pub fn score_windows(objects: &[TruthObject], windows: &[WindowRecord], min_pixels: u64) -> Counts {
     let mut counts = Counts::default();
     let mut last_id: HashMap<u16, String> = HashMap::new();
+    let mut seen_so_far: HashMap<u16, u64> = HashMap::new();
+    let mut last_map_id: HashMap<u16, String> = HashMap::new();
+    let mut id_objects: HashMap<String, std::collections::BTreeSet<u16>> = HashMap::new();
+    for window in windows {
+        for (id, pixels) in &window.objects {
+            *seen_so_far.entry(*id).or_default() += pixels;
+        }
+        let known: Vec<&TruthObject> = objects
+            .iter()
+            .filter(|o| seen_so_far.get(&o.id).is_some_and(|&p| p >= min_pixels))
+            .collect();
+        let known_boxes: Vec<OrientedBox> = known.iter().map(|o| o.bbox).collect();
+        let map_boxes: Vec<OrientedBox> = window.map.iter().map(|i| i.bbox).collect();
+        for (object, m) in known.iter().zip(match_by_iou(&known_boxes, &map_boxes)) {
+            let Some((i, iou)) = m else { continue };
+            if iou < IOU_LOOSE {
+                continue;
+            }
+            let id = &window.map[i].id;
+            counts.map_sightings += 1;
+            id_objects.entry(id.clone()).or_default().insert(object.id);
+            if let Some(previous) = last_map_id.insert(object.id, id.clone()) {
+                counts.map_id_changes += u64::from(&previous != id);
+            }
+        }
+    }
+    counts.map_ids_shared = id_objects.values().filter(|o| o.len() > 1).count() as u64;
     for window in windows {
         let seen: Vec<&TruthObject> = window
             .objects
@@ -544,14 +593,17 @@ mod tests {
             WindowRecord {
                 objects: vec![(1, 500), (2, 500)],
                 instances: vec![at(0.0, "a"), at(2.0, "b")],
+                map: vec![],
             },
             WindowRecord {
                 objects: vec![(1, 500), (2, 500), (3, 10)],
                 instances: vec![at(0.0, "a"), at(2.0, "c"), at(4.0, "d")],
+                map: vec![],
             },
             WindowRecord {
                 objects: vec![(2, 500)],
                 instances: vec![at(2.0, "c")],
+                map: vec![],
             },
         ];
         let counts = score_windows(&objects, &windows, 100);
@@ -561,5 +613,38 @@ mod tests {
         // window precision only.
         assert_eq!((counts.window_objects, counts.window_instances), (5, 6));
         assert_eq!(counts.window_found_25, 5);
+    }
+
+    #[test]
+    fn map_identity_counts_an_id_that_moves_to_another_object_and_an_object_that_changes_id() {
+        let objects = objects();
+        let window = |seen: Vec<(u16, u64)>, map: Vec<ListedInstance>| WindowRecord {
+            objects: seen,
+            instances: vec![],
+            map,
+        };
+        let windows = vec![
+            // Object 3 is in the map before it was seen enough: not yet counted.
+            window(
+                vec![(1, 600), (2, 600), (3, 10)],
+                vec![
+                    listed("a", 0.0, 0.5),
+                    listed("b", 2.0, 0.5),
+                    listed("z", 4.0, 0.5),
+                ],
+            ),
+            // Object 1 is now found under "b" (the id that was object 2's): one change for
+            // object 1, and "b" stands for two objects; object 2 not found this time.
+            window(vec![(1, 600)], vec![listed("b", 0.0, 0.5)]),
+            // Object 2 back under its own id: no change for it.
+            window(vec![(2, 600)], vec![listed("b", 2.0, 0.5)]),
+        ];
+        let counts = score_windows(&objects, &windows, 500);
+        assert_eq!(counts.map_sightings, 4);
+        assert_eq!(counts.map_id_changes, 1);
+        assert_eq!(counts.map_ids_shared, 1);
+        let s = counts.summary();
+        assert_eq!(s.map_id_changes_per_100_sightings, 25.0);
+        assert_eq!(s.map_ids_shared, 1);
     }
 }

@@ -188,13 +188,17 @@ impl<'a> PointGrid<'a> {
     }
 }
 
-/// Fraction of `g`'s Gaussians that `view` sees (inside the image, in front, not behind the
-/// observed depth by more than `tolerance`), and the number that project into the image.
-fn visible_fraction(g: &Gaussians, view: &WindowView, tolerance: f32) -> (f32, usize) {
+/// Fraction of `g`'s Gaussians that `view` sees through: inside the image, in front of the
+/// camera, with the observed depth behind them by more than `tolerance` (free space where the
+/// point was), and the number that project into the image. A point the view does not see
+/// (occluded) or sees as a surface proves nothing against the instance; only free space does:
+/// a window whose grouping missed an object the camera still sees in place is no evidence that
+/// the object is gone.
+fn seen_through_fraction(g: &Gaussians, view: &WindowView, tolerance: f32) -> (f32, usize) {
     let camera_from_world = view.keyframe.world_from_camera.inverse();
     let camera = &view.keyframe.camera;
     let width = camera.width as usize;
-    let (mut visible, mut inside) = (0usize, 0usize);
+    let (mut through, mut inside) = (0usize, 0usize);
     for m in &g.means {
         let p = camera_from_world.transform_point(m.as_dvec3());
         let Some(pixel) = camera.project(p) else {
@@ -206,11 +210,11 @@ fn visible_fraction(g: &Gaussians, view: &WindowView, tolerance: f32) -> (f32, u
         }
         inside += 1;
         let observed = view.depth[v as usize * width + u as usize];
-        if !observed.is_finite() || observed <= 0.0 || (p.z as f32) <= observed + tolerance {
-            visible += 1;
+        if observed.is_finite() && observed > 0.0 && (p.z as f32) + tolerance < observed {
+            through += 1;
         }
     }
-    (visible as f32 / g.len().max(1) as f32, inside)
+    (through as f32 / g.len().max(1) as f32, inside)
 }
 
 impl SceneMap {
@@ -232,6 +236,18 @@ impl SceneMap {
         window: Vec<WindowInstance>,
         views: &[WindowView],
         stamp_nanos: i64,
+    ) -> Result<FusionReport, GraphError> {
+        self.fuse_with(window, views, stamp_nanos, &|_, _| true)
+    }
+
+    /// [`SceneMap::fuse`], where map-level duplicates fold only if `same_kind` says so of
+    /// their prototypes.
+    fn fuse_with(
+        &mut self,
+        window: Vec<WindowInstance>,
+        views: &[WindowView],
+        stamp_nanos: i64,
+        same_kind: &dyn Fn(&[f32], &[f32]) -> bool,
     ) -> Result<FusionReport, GraphError> {
         let p = self.params;
         for (i, w) in window.iter().enumerate() {
@@ -318,7 +334,9 @@ impl SceneMap {
         let chosen: Vec<usize> = pairs.iter().flatten().copied().collect();
         let alike = |a: usize, b: usize| {
             let (pa, pb) = (&self.instances[a].prototype, &self.instances[b].prototype);
-            pa.is_empty() || pb.is_empty() || cosine(pa, pb) >= p.duplicate_similarity
+            pa.is_empty()
+                || pb.is_empty()
+                || (cosine(pa, pb) >= p.duplicate_similarity && same_kind(pa, pb))
         };
         let duplicates: Vec<Vec<usize>> = (0..rows)
             .map(|i| match pairs[i] {
@@ -346,7 +364,13 @@ impl SceneMap {
                     let mut group: Vec<usize> = std::iter::once(j)
                         .chain(duplicates[i].iter().copied().filter(|&d| !absorbed[d]))
                         .collect();
-                    group.sort_by_key(|&k| self.instances[k].first_seen_nanos);
+                    group.sort_by_key(|&k| {
+                        let instance = &self.instances[k];
+                        (
+                            instance.first_seen_nanos,
+                            std::cmp::Reverse(instance.observations),
+                        )
+                    });
                     let j = group[0];
                     for &d in &group[1..] {
                         absorbed[d] = true;
@@ -384,7 +408,7 @@ impl SceneMap {
                 }
             }
         }
-        // Unmatched instances that some window view should have seen lose confidence.
+        // Unmatched instances where some window view sees free space lose confidence.
         let mut keep: Vec<bool> = (0..self.instances.len())
             .map(|j| j >= absorbed.len() || !absorbed[j])
             .collect();
@@ -394,7 +418,7 @@ impl SceneMap {
             }
             let expected = views.iter().any(|view| {
                 let (fraction, inside) =
-                    visible_fraction(&instance.gaussians, view, p.depth_tolerance);
+                    seen_through_fraction(&instance.gaussians, view, p.depth_tolerance);
                 inside > 0 && fraction >= p.visible_fraction
             });
             if expected {
@@ -408,7 +432,7 @@ impl SceneMap {
         }
         // Duplicates the association could not see (two window instances of one object born in
         // the same window, or parts that grew together): fold them, younger into older.
-        for (absorbed, survivor) in self.fold_duplicates(&mut keep) {
+        for (absorbed, survivor) in self.fold_duplicates(&mut keep, same_kind) {
             report.absorbed.push((absorbed, survivor));
         }
         // Clearing radius around the newest camera.
@@ -445,7 +469,7 @@ impl SceneMap {
         stamp_nanos: i64,
         same_kind: impl Fn(&[f32], &[f32]) -> bool,
     ) -> Result<FusionReport, GraphError> {
-        let mut report = self.fuse(window, views, stamp_nanos)?;
+        let mut report = self.fuse_with(window, views, stamp_nanos, &same_kind)?;
         let folded = self.fold_fragments(same_kind);
         for (absorbed, survivor) in &folded {
             for id in report.assigned.iter_mut().filter(|id| *id == absorbed) {
@@ -504,7 +528,14 @@ impl SceneMap {
             built: (0..n).map(|_| None).collect(),
         };
         let mut order: Vec<usize> = (0..n).collect();
-        order.sort_by_key(|&i| (self.instances[i].first_seen_nanos, i));
+        order.sort_by_key(|&i| {
+            let instance = &self.instances[i];
+            (
+                instance.first_seen_nanos,
+                std::cmp::Reverse(instance.observations),
+                i,
+            )
+        });
         let mut folded = Vec::new();
         for (position, &a) in order.iter().enumerate() {
             if !keep[a] {
@@ -526,13 +557,19 @@ impl SceneMap {
     /// Fold instances that are one object (similar prototypes, overlapping boxes) into the oldest
     /// of them; `keep` marks the instances still alive and is updated. Returns (absorbed,
     /// survivor) id pairs.
-    fn fold_duplicates(&mut self, keep: &mut [bool]) -> Vec<(String, String)> {
+    fn fold_duplicates(
+        &mut self,
+        keep: &mut [bool],
+        same_kind: &dyn Fn(&[f32], &[f32]) -> bool,
+    ) -> Vec<(String, String)> {
         let p = self.params;
         let boxes: Vec<_> = self.instances.iter().map(|i| i.oriented_box()).collect();
         self.fold_pairs(keep, |instances, footprints, a, b| {
             let (pa, pb) = (&instances[a].prototype, &instances[b].prototype);
-            let similar =
-                !pa.is_empty() && !pb.is_empty() && cosine(pa, pb) >= p.duplicate_similarity;
+            let similar = !pa.is_empty()
+                && !pb.is_empty()
+                && cosine(pa, pb) >= p.duplicate_similarity
+                && same_kind(pa, pb);
             // Point footprints only where boxes alone do not decide.
             similar
                 && (boxes[a].iou(&boxes[b]) >= p.duplicate_iou
