@@ -595,13 +595,17 @@ fn score_listed(
     let objects = crate::eval::run::truth_objects(&sim.scene, |_| 1);
     let listed: Vec<ListedInstance> = instances
         .iter()
-        .map(|i| ListedInstance {
-            id: i.id.clone(),
-            name: i
-                .hypotheses
-                .first()
-                .map_or(String::new(), |h| h.class_id.clone()),
-            bbox: crate::eval::refer::instance_box(i),
+        .map(|i| {
+            let best = i.hypotheses.first();
+            ListedInstance {
+                id: i.id.clone(),
+                name: best.map_or(String::new(), |h| h.class_id.clone()),
+                name_score: best.map_or(0.0, |h| h.score),
+                // The message does not say; the demo's score line does not use it.
+                observations: 0,
+                gaussians: i.point_count as usize,
+                bbox: crate::eval::refer::instance_box(i),
+            }
         })
         .collect();
     let room = scene.room.size;

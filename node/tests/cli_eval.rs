@@ -106,6 +106,23 @@ fn eval_all_runs_every_evaluation_on_the_same_scenes_and_gathers_their_figures()
     assert!((0.0..=1.0).contains(&recall), "{recall}");
     assert!(figure(&summary["refer"]["queries"]) >= 1.0);
     assert_eq!(figure(&summary["window"]["summary"]["windows"]), 1.0);
+    // Every listed instance, with what it matched.
+    let instances =
+        std::fs::read_to_string(out.path().join("map/instances.csv")).expect("instances.csv");
+    let mut lines = instances.lines();
+    let header: Vec<&str> = lines.next().expect("a header").split(',').collect();
+    let outcome = header
+        .iter()
+        .position(|h| *h == "outcome")
+        .expect("outcome");
+    let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
+    assert!(!rows.is_empty(), "{instances}");
+    for row in &rows {
+        assert!(
+            ["object", "duplicate", "unmatched"].contains(&row[outcome]),
+            "{row:?}"
+        );
+    }
     let table = std::fs::read_to_string(out.path().join("summary.md")).expect("summary.md");
     assert_eq!(
         table.lines().filter(|l| l.starts_with("| window")).count(),

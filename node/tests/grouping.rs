@@ -319,6 +319,29 @@ fn hypotheses_rank_phrases_by_prototype_cosine() {
 }
 
 #[test]
+fn the_object_list_leaves_out_structure_and_small_pieces_named_unsurely() {
+    use groupforward::group::semantics::{CONFIDENT_NAME, MIN_LISTED_GAUSSIANS};
+    let v = vocabulary(0.05);
+    let sure = [1.0, 0.0, 0.0];
+    let unsure = [0.5, 0.48, 0.0];
+    assert!(v.hypotheses(&sure, 1)[0].1 >= CONFIDENT_NAME);
+    assert!(v.hypotheses(&unsure, 1)[0].1 < CONFIDENT_NAME);
+    let small = MIN_LISTED_GAUSSIANS - 1;
+    assert!(v.is_listed(&sure, small), "a small object named surely");
+    assert!(
+        v.is_listed(&unsure, MIN_LISTED_GAUSSIANS),
+        "a large one named unsurely"
+    );
+    assert!(!v.is_listed(&unsure, small), "a small piece named unsurely");
+    assert!(
+        !v.is_listed(&[0.0, 0.0, 1.0], 10_000),
+        "structure, however large"
+    );
+    // Without semantics there are no names to judge: listed.
+    assert!(v.is_listed(&[], 1));
+}
+
+#[test]
 fn same_kind_means_the_same_best_name_and_never_structure() {
     let v = vocabulary(0.05);
     assert!(

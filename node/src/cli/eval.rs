@@ -1,6 +1,7 @@
 //! `groupforward eval map`: sim scenes no training saw, replayed through the node's stages with
 //! the shipped (or given) models, the final map scored against ground truth. Writes
-//! `DIR/objects.csv` (one row per object), `DIR/summary.json` and `DIR/summary.md`, and prints
+//! `DIR/objects.csv` (one row per object), `DIR/instances.csv` (one row per listed instance:
+//! where the false positives are), `DIR/summary.json` and `DIR/summary.md`, and prints
 //! the table.
 
 use std::io::Write;
@@ -9,7 +10,9 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Context, Result};
 use groupforward::config::Config;
 use groupforward::eval::run::{run_scene, SceneRun};
-use groupforward::eval::score::{score_map, score_windows, Counts, ObjectRow, Summary};
+use groupforward::eval::score::{
+    score_instances, score_map, score_windows, Counts, InstanceRow, ObjectRow, Summary,
+};
 use groupforward::ingest::DepthValidity;
 use groupforward::model::ModelsSection;
 use groupforward::timing::{describe, summarise, Stage, StageSummary, StageTimes};
@@ -92,6 +95,7 @@ fn hex_digest(bytes: &[u8]) -> String {
 pub struct Scored {
     pub total: Counts,
     pub rows: Vec<ObjectRow>,
+    pub instance_rows: Vec<InstanceRow>,
     pub per_scene: Vec<(String, Summary, usize)>,
     pub window_times: Vec<StageTimes>,
     pub depth: DepthValidity,
@@ -135,6 +139,8 @@ impl Scored {
         ));
         self.total.add(&counts);
         self.rows.extend(scene_rows);
+        self.instance_rows
+            .extend(score_instances(&run.scene, &run.objects, &run.instances));
         self.window_times.extend(run.window_times.iter().cloned());
         self.depth.add(&run.depth);
         self.per_scene
@@ -161,6 +167,7 @@ pub fn eval_map(
     let Scored {
         total,
         rows,
+        instance_rows,
         per_scene,
         window_times,
         depth,
@@ -186,6 +193,30 @@ pub fn eval_map(
             r.name_correct,
             r.centre_error_m,
             r.size_ratio
+        )?;
+    }
+    let mut csv = csv_writer(&out.join("instances.csv"))?;
+    writeln!(
+        csv,
+        "scene,instance,name,name_score,observations,gaussians,size_x,size_y,size_z,outcome,object,object_class,iou"
+    )?;
+    for r in &instance_rows {
+        writeln!(
+            csv,
+            "{},{},{},{:.3},{},{},{:.3},{:.3},{:.3},{},{},{},{:.4}",
+            r.scene,
+            r.instance,
+            r.name,
+            r.name_score,
+            r.observations,
+            r.gaussians,
+            r.size[0],
+            r.size[1],
+            r.size[2],
+            serde_json::to_value(r.outcome)?.as_str().unwrap_or("?"),
+            r.object,
+            r.object_class,
+            r.iou
         )?;
     }
     let stages = summarise(&window_times);

@@ -272,19 +272,25 @@ pub fn replay_scene_with(
     })
 }
 
-/// The map's object list as the node publishes it: structure left out, each instance with its
-/// best name and its box.
+/// The map's object list as the node publishes it (structure and small unsure pieces left out:
+/// `Vocabulary::is_listed`), each instance with its best name and its box.
 fn listed_instances(map: &SceneMap, models: &WindowModels) -> Vec<ListedInstance> {
     let vocabulary = models.vocabulary.as_ref();
     map.instances
         .iter()
-        .filter(|i| !vocabulary.is_some_and(|v| v.is_structure(&i.prototype)))
-        .map(|i| ListedInstance {
-            id: i.id.clone(),
-            name: vocabulary
+        .filter(|i| vocabulary.is_none_or(|v| v.is_listed(&i.prototype, i.gaussians.len())))
+        .map(|i| {
+            let (name, name_score) = vocabulary
                 .and_then(|v| v.hypotheses(&i.prototype, 1).into_iter().next())
-                .map_or(String::new(), |(name, _)| name),
-            bbox: i.oriented_box(),
+                .unwrap_or_default();
+            ListedInstance {
+                id: i.id.clone(),
+                name,
+                name_score: f64::from(name_score),
+                observations: i.observations,
+                gaussians: i.gaussians.len(),
+                bbox: i.oriented_box(),
+            }
         })
         .collect()
 }

@@ -33,9 +33,43 @@ pub struct TruthObject {
 #[derive(Debug, Clone, PartialEq)]
 pub struct ListedInstance {
     pub id: String,
-    /// Best name ("" when unnamed).
+    /// Best name ("" when unnamed) and its score.
     pub name: String,
+    pub name_score: f64,
+    /// Windows it was matched in, and its Gaussians.
+    pub observations: u32,
+    pub gaussians: usize,
     pub bbox: OrientedBox,
+}
+
+/// What one listed instance is, against ground truth.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum InstanceOutcome {
+    /// Matched one-to-one to an object at IoU ≥ 0.25.
+    Object,
+    /// Unmatched, but overlapping a found object at IoU ≥ the duplicate threshold.
+    Duplicate,
+    /// Neither: a false positive (a piece of the room, of an object, or nothing).
+    Unmatched,
+}
+
+/// One listed instance's row of `instances.csv`: where the false positives are.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct InstanceRow {
+    pub scene: String,
+    pub instance: String,
+    pub name: String,
+    pub name_score: f64,
+    pub observations: u32,
+    pub gaussians: usize,
+    pub size: [f64; 3],
+    pub outcome: InstanceOutcome,
+    /// The object it was matched to (or overlaps most, for duplicates and unmatched ones; 0
+    /// when none) and that IoU.
+    pub object: u16,
+    pub object_class: String,
+    pub iou: f64,
 }
 
 /// One window: the objects its views saw (id, pixels), its instances before fusion with the
@@ -338,6 +372,65 @@ pub fn score_map(
     (rows, counts)
 }
 
+/// Each listed instance of one scene's final map against the objects (the same one-to-one
+/// matching as [`score_map`]).
+pub fn score_instances(
+    scene: &str,
+    objects: &[TruthObject],
+    instances: &[ListedInstance],
+) -> Vec<InstanceRow> {
+    let object_boxes: Vec<OrientedBox> = objects.iter().map(|o| o.bbox).collect();
+    let instance_boxes: Vec<OrientedBox> = instances.iter().map(|i| i.bbox).collect();
+    // Objects as rows, as in `score_map`, so both see the same matching.
+    let mut matched: Vec<Option<(usize, f64)>> = vec![None; instances.len()];
+    for (k, m) in match_by_iou(&object_boxes, &instance_boxes)
+        .iter()
+        .enumerate()
+    {
+        if let Some((i, iou)) = m {
+            if *iou >= IOU_LOOSE {
+                matched[*i] = Some((k, *iou));
+            }
+        }
+    }
+    let found: Vec<usize> = matched.iter().flatten().map(|(k, _)| *k).collect();
+    instances
+        .iter()
+        .zip(&matched)
+        .map(|(instance, m)| {
+            let (outcome, object, iou) = match m {
+                Some((k, iou)) => (InstanceOutcome::Object, Some(*k), *iou),
+                None => {
+                    let overlap = |k: usize| instance.bbox.iou(&objects[k].bbox);
+                    let nearest = (0..objects.len())
+                        .map(|k| (k, overlap(k)))
+                        .filter(|(_, iou)| *iou > 0.0)
+                        .max_by(|a, b| a.1.total_cmp(&b.1));
+                    let outcome = if found.iter().any(|&k| overlap(k) >= DUPLICATE_IOU) {
+                        InstanceOutcome::Duplicate
+                    } else {
+                        InstanceOutcome::Unmatched
+                    };
+                    (outcome, nearest.map(|n| n.0), nearest.map_or(0.0, |n| n.1))
+                }
+            };
+            InstanceRow {
+                scene: scene.to_owned(),
+                instance: instance.id.clone(),
+                name: instance.name.clone(),
+                name_score: instance.name_score,
+                observations: instance.observations,
+                gaussians: instance.gaussians,
+                size: instance.bbox.size.to_array(),
+                outcome,
+                object: object.map_or(0, |k| objects[k].id),
+                object_class: object.map_or(String::new(), |k| objects[k].class.clone()),
+                iou,
+            }
+        })
+        .collect()
+}
+
 /// Score the windows of one scene: each window's instances against the objects it saw (at least
 /// `min_pixels` in the window's views), and the persistent id every sighting got. An identity
 /// switch is an object sighted under another id than at its previous sighting. Then the map
@@ -425,6 +518,9 @@ mod tests {
         ListedInstance {
             id: id.into(),
             name: "chair".into(),
+            name_score: 0.9,
+            observations: 3,
+            gaussians: 500,
             bbox: object(0, x, size).bbox,
         }
     }
@@ -646,5 +742,42 @@ mod tests {
         let s = counts.summary();
         assert_eq!(s.map_id_changes_per_100_sightings, 25.0);
         assert_eq!(s.map_ids_shared, 1);
+    }
+
+    #[test]
+    fn each_listed_instance_is_an_object_a_duplicate_or_unmatched() {
+        let objects = objects();
+        let map = vec![
+            listed("a", 0.0, 0.5),
+            // Half of object 1 again: overlaps the found object (a duplicate).
+            ListedInstance {
+                bbox: OrientedBox {
+                    centre: DVec3::new(0.1, 0.0, 0.25),
+                    size: DVec3::new(0.3, 0.5, 0.5),
+                    yaw: 0.0,
+                },
+                ..listed("a2", 0.0, 0.5)
+            },
+            // Overlaps object 3, which nothing found, too little to be it.
+            listed("c", 4.4, 0.5),
+            listed("far", 10.0, 0.5),
+        ];
+        let rows = score_instances("s", &objects, &map);
+        let outcomes: Vec<_> = rows.iter().map(|r| (r.outcome, r.object)).collect();
+        assert_eq!(
+            outcomes,
+            [
+                (InstanceOutcome::Object, 1),
+                (InstanceOutcome::Duplicate, 1),
+                (InstanceOutcome::Unmatched, 3),
+                (InstanceOutcome::Unmatched, 0),
+            ]
+        );
+        assert!((rows[0].iou - 1.0).abs() < 1e-9);
+        assert!(rows[2].iou > 0.0 && rows[2].iou < IOU_LOOSE);
+        assert_eq!(rows[3].iou, 0.0);
+        // The same matching as the object table.
+        let (object_rows, _) = score_map("s", &objects, &map, 30.0, 1000);
+        assert_eq!(object_rows[0].instance, "a");
     }
 }

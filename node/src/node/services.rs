@@ -116,7 +116,7 @@ pub fn instance_messages_cached(
     let messages = map
         .instances
         .iter()
-        .filter(|i| !vocabulary.is_some_and(|v| v.is_structure(&i.prototype)))
+        .filter(|i| vocabulary.is_none_or(|v| v.is_listed(&i.prototype, i.gaussians.len())))
         .map(|i| {
             let print = fingerprint(&i.gaussians);
             let b = match cache.0.get(&i.id) {

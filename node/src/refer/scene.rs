@@ -11,7 +11,7 @@ use glam::DVec3;
 
 use crate::frame::Keyframe;
 use crate::graph::{GraphError, SceneGraph, SceneMap};
-use crate::group::semantics::{Vocabulary, OTHER_PHRASE};
+use crate::group::semantics::Vocabulary;
 use crate::recon::boxes::OrientedBox;
 use crate::recon::gaussians::Gaussians;
 
@@ -113,7 +113,10 @@ impl ReferScene {
                 (Some(v), Some(i)) => v.phrases[i].clone(),
                 _ => String::new(),
             };
-            if label == OTHER_PHRASE {
+            // What the object list leaves out (structure, small unsure pieces) is no candidate.
+            if vocabulary
+                .is_some_and(|v| !v.is_listed(&instance.prototype, instance.gaussians.len()))
+            {
                 continue;
             }
             let bbox = boxes
