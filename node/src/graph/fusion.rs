@@ -1,6 +1,6 @@
 //! Fusion: associate a window's instances with the persistent ones (3D overlap plus prototype
-//! similarity, Kuhn–Munkres, then parts), merge or give birth, fold duplicates, and let instances that should
-//! have been seen lose confidence and die.
+//! similarity, Kuhn–Munkres, then parts), merge or give birth, fold duplicates named alike, and
+//! let instances where a view sees free space lose confidence and die.
 
 use std::collections::VecDeque;
 

@@ -99,13 +99,14 @@ pub struct FusionParams {
     pub max_keyframes: usize,
     /// Instances farther than this from the newest keyframe's camera are dropped (metres).
     pub clearing_radius: f32,
-    /// Confidence of a new instance, gained per match, and lost per window that should have
-    /// seen it but did not.
+    /// Confidence of a new instance, gained per match, and lost per window that sees free space
+    /// where it was and matches it to nothing.
     pub birth_confidence: f32,
     pub confirm_gain: f32,
     pub miss_penalty: f32,
-    /// Fraction of an instance's Gaussians that must be visible (in the image, not occluded) for
-    /// the window to count as having been able to see it.
+    /// Fraction of an instance's Gaussians a view must see through (in the image, the observed
+    /// depth behind them by more than `depth_tolerance`) for the window to count as evidence
+    /// that it is gone. A view that sees its surface in place is no such evidence.
     pub visible_fraction: f32,
     /// Depth tolerance of the occlusion test (metres).
     pub depth_tolerance: f32,

@@ -5,7 +5,7 @@
 //! prototype similarity with an optimal assignment (Kuhn–Munkres, `pathfinding`), after which a
 //! window instance left over that lies mostly on one persistent instance joins it as a part of
 //! that object; matched ones merge (voxel-downsampled Gaussians, count-weighted prototype), unmatched ones are born, and
-//! persistent instances that the window should have seen but did not lose confidence and die.
+//! persistent instances where the window sees free space lose confidence and die.
 //! Memory stays bounded: Gaussians per instance and keyframes are capped, and instances beyond a
 //! clearing radius from the robot are dropped. [`SceneMap::graph`] derives nodes and edges.
 
