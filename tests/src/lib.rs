@@ -31,6 +31,9 @@ pub struct ScriptedReply {
     pub status: u16,
     pub body: String,
     pub delay: std::time::Duration,
+    /// When set, the body is sent this many bytes at a time with `delay` between chunks (a slow
+    /// drip) instead of after one `delay`.
+    pub drip_bytes: Option<usize>,
 }
 
 impl ScriptedReply {
@@ -44,6 +47,7 @@ impl ScriptedReply {
             status: 200,
             body,
             delay: std::time::Duration::ZERO,
+            drip_bytes: None,
         }
     }
 }
@@ -105,14 +109,30 @@ impl ScriptedChatServer {
                         String::from_utf8_lossy(&body).into_owned(),
                     ));
                 }
-                std::thread::sleep(reply.delay);
                 let response = format!(
                     "HTTP/1.1 {} Scripted\r\nContent-Type: application/json\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{}",
                     reply.status,
                     reply.body.len(),
                     reply.body
                 );
-                let _ = stream.write_all(response.as_bytes());
+                match reply.drip_bytes {
+                    None => {
+                        std::thread::sleep(reply.delay);
+                        let _ = stream.write_all(response.as_bytes());
+                    }
+                    Some(chunk) => {
+                        for part in response.as_bytes().chunks(chunk.max(1)) {
+                            if stream
+                                .write_all(part)
+                                .and_then(|()| stream.flush())
+                                .is_err()
+                            {
+                                break;
+                            }
+                            std::thread::sleep(reply.delay);
+                        }
+                    }
+                }
             }
         });
         Self {

@@ -166,6 +166,7 @@ fn every_vlm_fault_falls_back_to_the_builtin_answer_and_says_why() {
                 status: 500,
                 body: "overloaded".into(),
                 delay: Duration::ZERO,
+                drip_bytes: None,
             },
             "HTTP 500",
         ),
@@ -180,6 +181,7 @@ fn every_vlm_fault_falls_back_to_the_builtin_answer_and_says_why() {
                 status: 200,
                 body: "<html>".into(),
                 delay: Duration::ZERO,
+                drip_bytes: None,
             },
             "not the expected JSON",
         ),
@@ -194,6 +196,22 @@ fn every_vlm_fault_falls_back_to_the_builtin_answer_and_says_why() {
             "asks for",
         ),
         ("none", ScriptedReply::content(r#"{"ids": []}"#), "asks for"),
+        (
+            // A valid answer, 16 bytes every 50 ms: the whole request, not each read, is timed.
+            "slow drip",
+            ScriptedReply {
+                delay: Duration::from_millis(50),
+                drip_bytes: Some(16),
+                ..ScriptedReply::content(r#"{"ids": ["inst_000002"]}"#)
+            },
+            "did not answer",
+        ),
+        (
+            // 10 MB of content: refused at the client's body limit (1 MiB), never held whole.
+            "10 MB answer",
+            ScriptedReply::content(&"x".repeat(10 << 20)),
+            "larger than",
+        ),
     ];
     for (name, reply, reason) in faults {
         let (a, _server) = ask("the chair closest to the lamp", reply, 0.5);
@@ -313,6 +331,7 @@ fn an_invalid_decomposition_is_an_error_the_rule_parser_then_answers() {
         status: 503,
         body: "busy".into(),
         delay: Duration::ZERO,
+        drip_bytes: None,
     });
     assert!(matches!(query, Err(VlmError::Http { status: 503, .. })));
 }

@@ -14,6 +14,9 @@ use serde_json::json;
 use super::evidence::{png, Evidence};
 use super::parse::{Count, Query, Relation, Superlative, COLOR_WORDS};
 
+/// The largest VLM response body read (bytes).
+pub const MAX_ANSWER_BYTES: u64 = 1 << 20;
+
 /// The `refer.vlm` section of the node's config.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -180,7 +183,14 @@ impl VlmClient {
         };
         let mut response = request.send(body.to_string()).map_err(transport)?;
         let status = response.status().as_u16();
-        let text = response.body_mut().read_to_string().map_err(transport)?;
+        // An answer is a few hundred bytes of JSON (max_tokens 256); a server that sends more is
+        // refused before it can fill memory.
+        let text = response
+            .body_mut()
+            .with_config()
+            .limit(MAX_ANSWER_BYTES)
+            .read_to_string()
+            .map_err(transport)?;
         if status != 200 {
             return Err(VlmError::Http {
                 status,
