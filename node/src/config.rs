@@ -82,13 +82,21 @@ pub struct NodeSection {
     pub name: String,
     /// Absolute ROS namespace; also names the JSON API prefix (`groupforward/<namespace>/...`).
     pub namespace: String,
+    /// Requests the services and the JSON API take per second, all together (a burst of as many
+    /// is allowed); more are refused with the reason and counted in the status. 0: no bound.
+    pub max_requests_per_second: f64,
 }
+
+/// Well above a navigation stack's query rate (the reliability suite's flood asks at 20 Hz),
+/// well below what would starve the window pass of the map's lock.
+pub const DEFAULT_MAX_REQUESTS_PER_SECOND: f64 = 100.0;
 
 impl Default for NodeSection {
     fn default() -> Self {
         Self {
             name: DEFAULT_NODE_NAME.into(),
             namespace: DEFAULT_NAMESPACE.into(),
+            max_requests_per_second: DEFAULT_MAX_REQUESTS_PER_SECOND,
         }
     }
 }
@@ -169,6 +177,12 @@ impl Config {
                 return invalid(format!("{what} must be a positive number, got {value}"));
             }
         }
+        let rate = self.node.max_requests_per_second;
+        if !(rate.is_finite() && rate >= 0.0) {
+            return invalid(format!(
+                "node.max_requests_per_second must be 0 (no bound) or a positive number, got {rate}"
+            ));
+        }
         if self.ingest.queue_depth == 0 || self.ingest.pending_frames == 0 {
             return invalid(
                 "ingest.queue_depth and ingest.pending_frames must be at least 1".into(),
@@ -240,6 +254,11 @@ mod tests {
         assert!(Config::from_yaml("node:\n  namespace: relative\n").is_err());
         assert!(Config::from_yaml("ingest:\n  sync_tolerance_secs: -1\n").is_err());
         assert!(Config::from_yaml("status:\n  period_secs: .nan\n").is_err());
+        for rate in ["-1", ".nan", ".inf"] {
+            let yaml = format!("node:\n  max_requests_per_second: {rate}\n");
+            assert!(Config::from_yaml(&yaml).is_err(), "{rate}");
+        }
+        assert!(Config::from_yaml("node:\n  max_requests_per_second: 0\n").is_ok());
         let twice = "cameras:\n  - name: a\n  - name: a\n";
         assert!(Config::from_yaml(twice).is_err());
     }

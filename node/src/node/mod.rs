@@ -11,6 +11,7 @@
 //! - this file: [`run`], the loop that ties them together.
 
 pub mod error;
+pub mod limit;
 pub mod outputs;
 pub mod queue;
 pub mod services;
@@ -45,6 +46,7 @@ pub fn run(
         hypotheses: config.semantics.hypotheses,
         refer: config.refer.clone(),
         world_frame: config.tf.world_frame.clone(),
+        limiter: limit::RequestLimiter::new(config.node.max_requests_per_second),
         ..Shared::default()
     };
     if let Some(file) = config
@@ -284,6 +286,53 @@ mod tests {
         assert!(ingest.count >= 3, "{ingest:?}");
         assert!(ingest.p50_ms <= ingest.p99_ms && ingest.p99_ms.is_finite());
         assert!(status.stages.iter().all(|s| s.stage != "window"));
+    }
+
+    #[test]
+    fn requests_beyond_the_node_s_rate_are_refused_with_the_reason_and_counted() {
+        let mut config = Config::default();
+        config.cameras[0].depth_topic = None;
+        config.status.period_secs = 0.05;
+        config.node.max_requests_per_second = 2.0;
+        let (bus, shutdown, runner) = start(&config);
+        let request = cdr::encode(&ListInstancesRequest::default()).unwrap();
+        let answers: Vec<_> = (0..20)
+            .map(|_| bus.call("/groupforward/list_instances", &request))
+            .collect();
+        let taken = answers.iter().filter(|a| a.is_ok()).count();
+        // The burst (2), plus what refilled while the 20 calls ran (well under half a second).
+        assert!((2..=3).contains(&taken), "{taken} taken");
+        for refused in answers.iter().filter_map(|a| a.as_ref().err()) {
+            assert!(
+                refused.to_string().contains("request_rate_limited"),
+                "{refused}"
+            );
+        }
+        // The JSON API shares the bound; the status stays readable and counts the refusals.
+        assert!(bus.get_json("groupforward/default/instances", b"").is_err());
+        let deadline = Instant::now() + Duration::from_secs(5);
+        loop {
+            let json: serde_json::Value =
+                serde_json::from_str(&bus.get_json("groupforward/default/status", b"").unwrap())
+                    .unwrap();
+            let limited = json["rejections"]
+                .as_array()
+                .and_then(|r| r.iter().find(|r| r["reason"] == "request_rate_limited"))
+                .and_then(|r| r["count"].as_u64());
+            if limited == Some((20 - taken + 1) as u64) {
+                break;
+            }
+            assert!(
+                Instant::now() < deadline,
+                "status never counted them: {json}"
+            );
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        // The bucket refills at the rate: a request half a second later is taken.
+        std::thread::sleep(Duration::from_millis(600));
+        assert!(bus.call("/groupforward/list_instances", &request).is_ok());
+        shutdown.store(true, Ordering::Relaxed);
+        runner.join().unwrap().unwrap();
     }
 
     /// A map with one instance: a small cube of Gaussians.

@@ -48,6 +48,9 @@ pub struct Shared {
     pub hypotheses: usize,
     /// Windows that built nothing: no view had valid depth.
     pub windows_skipped: u64,
+    /// The bound on requests to the services and the JSON API, and the requests it refused.
+    pub limiter: super::limit::RequestLimiter,
+    pub requests_limited: u64,
     /// What referring queries read: a snapshot of `map`, taken by the first query after the map
     /// changed (`refer_scene_generation` behind `map_generation`), so windows never pay for it.
     pub refer_scene: Arc<ReferScene>,
@@ -499,6 +502,24 @@ fn answer_refer(shared: &Mutex<Shared>, request: &ReferRequest) -> ReferResponse
     refer::response::response(&answer, &scene, &gaussians, &world_frame, novel.as_ref())
 }
 
+/// The reason a request over the bound is refused with (and the status counts it under).
+pub const REQUEST_RATE_LIMITED: &str = "request_rate_limited";
+
+/// Take a request under the node's bound on requests, or refuse it with the reason (counted).
+pub fn admit(shared: &Mutex<Shared>) -> std::result::Result<(), String> {
+    let mut s = shared
+        .lock()
+        .map_err(|_| "node state unavailable".to_owned())?;
+    if s.limiter.admit(std::time::Instant::now()) {
+        Ok(())
+    } else {
+        s.requests_limited += 1;
+        Err(format!(
+            "{REQUEST_RATE_LIMITED}: more requests than node.max_requests_per_second"
+        ))
+    }
+}
+
 /// The `Refer` service: CDR in, CDR out.
 pub fn handle_refer(
     shared: &Mutex<Shared>,
@@ -633,21 +654,36 @@ pub fn declare(
         Refer::TYPE_NAME,
         Qos::default(),
     )?;
-    let s = shared.clone();
-    transport.serve(&refer, Arc::new(move |req| handle_refer(&s, req)))?;
-    let s = shared.clone();
-    transport.serve(&save, Arc::new(move |req| handle_save(&s, req)))?;
-    let s = shared.clone();
-    transport.serve(&load, Arc::new(move |req| handle_load(&s, req)))?;
-    let s = shared.clone();
-    transport.serve(&list, Arc::new(move |req| handle_list(&s, req)))?;
-    let s = shared.clone();
-    transport.serve(&get, Arc::new(move |req| handle_get(&s, req)))?;
+    type Handler = fn(&Mutex<Shared>, &[u8]) -> std::result::Result<Vec<u8>, String>;
+    let handlers: [(&Endpoint, Handler); 5] = [
+        (&refer, handle_refer),
+        (&save, handle_save),
+        (&load, handle_load),
+        (&list, handle_list),
+        (&get, handle_get),
+    ];
+    for (endpoint, handle) in handlers {
+        let s = shared.clone();
+        transport.serve(
+            endpoint,
+            Arc::new(move |req| {
+                admit(&s)?;
+                handle(&s, req)
+            }),
+        )?;
+    }
     let prefix = config.api_prefix();
     let s = shared.clone();
     transport.serve_json(
         &prefix,
-        Arc::new(move |api, body| handle_json(&s, api, &String::from_utf8_lossy(body))),
+        Arc::new(move |api, body| {
+            // The status is a cached message: reading it costs nothing and is how a client
+            // learns that it is being refused.
+            if api != "status" {
+                admit(&s)?;
+            }
+            handle_json(&s, api, &String::from_utf8_lossy(body))
+        }),
     )?;
     Ok(Declared {
         subscriptions,

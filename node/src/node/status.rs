@@ -190,6 +190,12 @@ pub(super) fn publish_status(
                 count: s.windows_skipped,
             });
         }
+        if s.requests_limited > 0 {
+            status.rejections.push(RejectCount {
+                reason: super::services::REQUEST_RATE_LIMITED.to_owned(),
+                count: s.requests_limited,
+            });
+        }
         // Ingest runs on the node loop; the other stages on the worker, publisher and service
         // threads. One list in data-flow order.
         let mut summaries = node.stages.summary();
