@@ -712,3 +712,82 @@ fn a_snapshot_torn_mid_write_never_replaces_the_good_one() {
     std::fs::write(&path, &bytes[..bytes.len() / 2]).unwrap();
     assert!(persist::load(&path, good.params).is_err());
 }
+
+/// A map with `n` instances of a few hundred Gaussians each: a snapshot of a few hundred kB, so
+/// that kills land inside writes, not only between them.
+fn map_of(n: usize, prototype: [f32; 3]) -> SceneMap {
+    let mut map = SceneMap::new(FusionParams::default());
+    let window = (0..n)
+        .map(|i| instance(Vec3::new(2.0 * i as f32, 10.0, 0.0), prototype))
+        .collect();
+    map.fuse(window, &[], 1).unwrap();
+    map
+}
+
+#[cfg(unix)]
+#[test]
+fn a_saving_process_killed_at_random_points_always_leaves_a_snapshot_that_loads() {
+    const WRITER: &str = "GF_CRASH_WRITER";
+    let (a, b) = (map_of(12, CHAIR), map_of(20, TABLE));
+    // The child: this test, run again with the variable set, saving a and b in turn until killed.
+    if let Some(path) = std::env::var_os(WRITER) {
+        let path = std::path::PathBuf::from(path);
+        loop {
+            persist::save(&a, &path).unwrap();
+            persist::save(&b, &path).unwrap();
+        }
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("map.gfmap");
+    persist::save(&a, &path).unwrap();
+    let size = std::fs::metadata(&path).unwrap().len();
+    assert!(
+        size > 100_000,
+        "{size} bytes: too small for kills to land mid-write"
+    );
+    let exe = std::env::current_exe().unwrap();
+    let (mut seen_a, mut seen_b, mut mid_write) = (0, 0, 0);
+    for trial in 0u64..100 {
+        let mut child = std::process::Command::new(&exe)
+            .args([
+                "--exact",
+                "a_saving_process_killed_at_random_points_always_leaves_a_snapshot_that_loads",
+                "--test-threads=1",
+            ])
+            .env(WRITER, &path)
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .unwrap();
+        // A spread of kill times (a seeded stride, not wall-clock luck), from before the first
+        // write to many writes in.
+        let wait = 5 + (trial * 37) % 60;
+        std::thread::sleep(std::time::Duration::from_millis(wait));
+        child.kill().unwrap(); // SIGKILL: no destructor, no cleanup runs
+        child.wait().unwrap();
+        // A temp file left behind: this kill landed inside a write.
+        mid_write += usize::from(std::fs::read_dir(dir.path()).unwrap().count() > 1);
+        let loaded = persist::load(&path, a.params)
+            .unwrap_or_else(|e| panic!("trial {trial} (killed after {wait} ms): {e}"));
+        if loaded == a {
+            seen_a += 1;
+        } else if loaded == b {
+            seen_b += 1;
+        } else {
+            panic!("trial {trial}: the snapshot is neither map");
+        }
+    }
+    // The kills landed at different points of the alternating saves.
+    assert!(seen_a > 0 && seen_b > 0, "{seen_a} / {seen_b}");
+    assert!(
+        mid_write > 10,
+        "only {mid_write} kills landed inside a write"
+    );
+    // The next save removes what the killed writers left behind.
+    persist::save(&a, &path).unwrap();
+    let files: Vec<_> = std::fs::read_dir(dir.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
+    assert_eq!(files, ["map.gfmap"], "temp files left");
+}

@@ -315,8 +315,9 @@ fn io(path: &Path) -> impl FnOnce(std::io::Error) -> PersistError + '_ {
 }
 
 /// Write `bytes` to `path` atomically: a temp file in the same directory, synced, then renamed
-/// over `path`. A failure at any point (disk full, crash) leaves `path` as it was and removes the
-/// temp file.
+/// over `path`, and the directory synced (so the rename survives a power cut). A failure at any
+/// point (disk full, crash) leaves `path` as it was and removes the temp file; the temp files of
+/// a process killed mid-write (`.<name>.<random>.tmp`) are removed by the next save to `path`.
 pub fn write_atomically(path: &Path, bytes: &[u8]) -> Result<(), PersistError> {
     write_atomically_with(path, bytes, |file, bytes| file.write_all(bytes))
 }
@@ -331,14 +332,45 @@ pub fn write_atomically_with(
         .parent()
         .filter(|p| !p.as_os_str().is_empty())
         .unwrap_or(Path::new("."));
-    let mut temp = tempfile::NamedTempFile::new_in(dir).map_err(io(dir))?;
+    let name = path
+        .file_name()
+        .map_or_else(|| "snapshot".into(), |n| n.to_string_lossy().into_owned());
+    let prefix = format!(".{name}.");
+    remove_stale_temp_files(dir, &prefix);
+    let mut temp = tempfile::Builder::new()
+        .prefix(&prefix)
+        .suffix(TEMP_SUFFIX)
+        .tempfile_in(dir)
+        .map_err(io(dir))?;
     write(temp.as_file_mut(), bytes).map_err(io(path))?;
     temp.as_file().sync_all().map_err(io(path))?;
     temp.persist(path).map_err(|e| PersistError::Io {
         path: path.to_owned(),
         source: e.error,
     })?;
+    // Not every platform lets a directory be synced; the rename itself has happened.
+    if let Ok(directory) = std::fs::File::open(dir) {
+        let _ = directory.sync_all();
+    }
     Ok(())
+}
+
+const TEMP_SUFFIX: &str = ".tmp";
+
+/// Remove temp files a writer of this target left when it was killed mid-write (saves to one
+/// target are serialised by the node; a second process writing the same file is a misuse, and
+/// its rename then fails with an error rather than tearing the snapshot).
+fn remove_stale_temp_files(dir: &Path, prefix: &str) {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    for entry in entries.flatten() {
+        let name = entry.file_name();
+        let name = name.to_string_lossy();
+        if name.starts_with(prefix) && name.ends_with(TEMP_SUFFIX) {
+            let _ = std::fs::remove_file(entry.path());
+        }
+    }
 }
 
 /// Save `map` to `path` atomically.
