@@ -11,13 +11,13 @@ use std::time::{Duration, Instant};
 
 use groupforward_msgs::geometry_msgs::Quaternion;
 use groupforward_msgs::gf_msgs::{
-    InstanceArray, InstanceMasks, ListInstancesRequest, ListInstancesResponse, NodeStatus,
-    SceneGraph,
+    InstanceArray, InstanceMasks, ListInstancesRequest, ListInstancesResponse, MapPathRequest,
+    MapResultResponse, NodeStatus, SceneGraph,
 };
 use groupforward_msgs::rmw_zenoh::{self, Attachment, Qos};
 use groupforward_msgs::sensor_msgs::Image;
 use groupforward_msgs::sensor_msgs::PointCloud2;
-use groupforward_msgs::services::{ListInstances, Refer};
+use groupforward_msgs::services::{ListInstances, Refer, SaveMap};
 use groupforward_msgs::tf2_msgs::TFMessage;
 use groupforward_msgs::vision_msgs::Detection3DArray;
 use groupforward_msgs::visualization_msgs::MarkerArray;
@@ -156,6 +156,8 @@ pub struct DemoReport {
     pub published: PublishedOutputs,
     /// Messages written to the `record_outputs` bag, when one was asked for.
     pub recorded_outputs: Option<u64>,
+    /// The map as `save_map` wrote it at the end, and its content hash (or why not).
+    pub saved_map: std::result::Result<(std::path::PathBuf, String), String>,
     pub elapsed: Duration,
 }
 
@@ -514,6 +516,31 @@ pub fn run_demo(options: &DemoOptions) -> Result<DemoReport> {
             millis,
         });
     }
+    // The map as a client saves it, and its content hash (two runs that built the same map
+    // print the same hash; the live node drops windows while busy, so two runs may not).
+    let save_service =
+        rmw_zenoh::resolve_name(&config.node.namespace, &config.node.name, "~/save_map")
+            .map_err(TransportError::from)?;
+    let map_file = evidence_dir
+        .parent()
+        .map_or_else(|| evidence_dir.clone(), std::path::Path::to_path_buf)
+        .join("map.gfmap");
+    let saved_map = call_service::<SaveMap>(
+        &session,
+        domain,
+        &save_service,
+        &MapPathRequest {
+            path: map_file.display().to_string(),
+        },
+        timeout,
+    )
+    .map_err(|e| e.to_string())
+    .and_then(|r: MapResultResponse| if r.success { Ok(()) } else { Err(r.message) })
+    .and_then(|()| {
+        crate::graph::persist::load(&map_file, crate::graph::FusionParams::default())
+            .map_err(|e| e.to_string())
+    })
+    .map(|map| (map_file.clone(), crate::graph::persist::content_hash(&map)));
     // The status after the queries: where the time went, the queries included.
     let asked = answers.len() as u64;
     let status = match wait_for("time the queries", timeout, || {
@@ -579,6 +606,7 @@ pub fn run_demo(options: &DemoOptions) -> Result<DemoReport> {
         map_score,
         published,
         recorded_outputs,
+        saved_map,
         elapsed: started.elapsed(),
     })
 }

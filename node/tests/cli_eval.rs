@@ -103,6 +103,13 @@ fn eval_all_runs_every_evaluation_on_the_same_scenes_and_gathers_their_figures()
     assert_eq!(summary["scenes"][0], "benchmark_00010");
     let figure = |v: &serde_json::Value| v.as_f64().unwrap_or(f64::NAN);
     let recall = figure(&summary["map"]["summary"]["recall_at_25"]);
+    let hash = summary["map"]["map_hashes"]["benchmark_00010"].as_str();
+    assert_eq!(
+        hash.map(str::len),
+        Some(16),
+        "{:?}",
+        summary["map"]["map_hashes"]
+    );
     assert!((0.0..=1.0).contains(&recall), "{recall}");
     assert!(figure(&summary["refer"]["queries"]) >= 1.0);
     assert_eq!(figure(&summary["window"]["summary"]["windows"]), 1.0);

@@ -644,6 +644,26 @@ fn sample_map() -> SceneMap {
 }
 
 #[test]
+fn the_content_hash_names_a_map_and_changes_with_any_gaussian() {
+    let map = sample_map();
+    let hash = persist::content_hash(&map);
+    assert_eq!(hash.len(), 16);
+    assert_eq!(hash, persist::content_hash(&map.clone()));
+    let mut moved = map.clone();
+    moved.instances[1].gaussians.means[7].x += 1e-3;
+    assert_ne!(hash, persist::content_hash(&moved));
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("map.gfmap");
+    persist::save(&map, &path).unwrap();
+    let loaded = persist::load(&path, map.params).unwrap();
+    assert_eq!(
+        hash,
+        persist::content_hash(&loaded),
+        "a round trip keeps the hash"
+    );
+}
+
+#[test]
 fn save_then_load_gives_the_identical_map_and_graph() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("map.gfmap");

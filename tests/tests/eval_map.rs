@@ -11,6 +11,7 @@ use groupforward::config::Config;
 use groupforward::eval::refer::{ask_scene, held_out_views, Referrer, SceneTruth};
 use groupforward::eval::run::run_scene;
 use groupforward::eval::score::{score_map, score_windows, Outcome};
+use groupforward::graph::persist;
 use groupforward::model::ModelsSection;
 use groupforward::window::WindowModels;
 use groupforward_sim::scene::SceneFile;
@@ -26,6 +27,14 @@ fn the_demo_scene_s_map_finds_its_objects_and_answers_its_referring_expressions(
     let scene = SceneFile::builtin("two_chairs").unwrap();
     let mut run = run_scene(&scene, &config, &mut window_models).unwrap();
     assert!(run.windows.len() >= 5, "{} windows", run.windows.len());
+    // Deterministic: the same bag through the same stages builds the same map, to the bit.
+    let again = run_scene(&scene, &config, &mut window_models).unwrap();
+    assert_eq!(
+        persist::content_hash(&run.map),
+        persist::content_hash(&again.map),
+        "two replays of one bag built different maps"
+    );
+    assert_eq!(run.instances, again.instances);
     let (rows, counts) = score_map(
         &run.scene,
         &run.objects,

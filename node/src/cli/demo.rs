@@ -225,6 +225,13 @@ fn print_report(report: &DemoReport) {
         }
         Err(e) => println!("  text encoder unavailable: {e}"),
     }
+    match &report.saved_map {
+        Ok((file, hash)) => println!(
+            "  save_map service wrote {} (map content hash {hash})",
+            file.display()
+        ),
+        Err(why) => println!("  save_map service failed: {why}"),
+    }
     println!("  finished in {:.1} s", report.elapsed.as_secs_f64());
 }
 

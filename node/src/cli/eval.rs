@@ -96,6 +96,8 @@ pub struct Scored {
     pub total: Counts,
     pub rows: Vec<ObjectRow>,
     pub instance_rows: Vec<InstanceRow>,
+    /// Per scene, the final map's content hash (a run is deterministic: the same hash again).
+    pub map_hashes: Vec<(String, String)>,
     pub per_scene: Vec<(String, Summary, usize)>,
     pub window_times: Vec<StageTimes>,
     pub depth: DepthValidity,
@@ -141,6 +143,10 @@ impl Scored {
         self.rows.extend(scene_rows);
         self.instance_rows
             .extend(score_instances(&run.scene, &run.objects, &run.instances));
+        self.map_hashes.push((
+            run.scene.clone(),
+            groupforward::graph::persist::content_hash(&run.map),
+        ));
         self.window_times.extend(run.window_times.iter().cloned());
         self.depth.add(&run.depth);
         self.per_scene
@@ -168,6 +174,7 @@ pub fn eval_map(
         total,
         rows,
         instance_rows,
+        map_hashes,
         per_scene,
         window_times,
         depth,
@@ -225,6 +232,10 @@ pub fn eval_map(
     let json = serde_json::json!({
         "summary": summary,
         "counts": total,
+        "map_hashes": map_hashes
+            .iter()
+            .map(|(scene, hash)| (scene.clone(), serde_json::json!(hash)))
+            .collect::<serde_json::Map<_, _>>(),
         "scenes": per_scene.iter().map(|(name, s, windows)| serde_json::json!({
             "scene": name, "windows": windows, "summary": s})).collect::<Vec<_>>(),
         "depth": {

@@ -373,6 +373,17 @@ fn remove_stale_temp_files(dir: &Path, prefix: &str) {
     }
 }
 
+/// The map's content hash: SHA-256 of its snapshot bytes (ids, prototypes, every Gaussian,
+/// keyframes), the first 16 hex digits. Two runs that built the same map print the same hash.
+pub fn content_hash(map: &SceneMap) -> String {
+    use sha2::Digest;
+    sha2::Sha256::digest(to_bytes(map))
+        .iter()
+        .take(8)
+        .map(|b| format!("{b:02x}"))
+        .collect()
+}
+
 /// Save `map` to `path` atomically.
 pub fn save(map: &SceneMap, path: &Path) -> Result<(), PersistError> {
     write_atomically(path, &to_bytes(map))
