@@ -24,7 +24,7 @@ pub mod tf;
 pub mod validate;
 
 #[cfg(test)]
-mod test_messages;
+pub(crate) mod test_messages;
 
 pub use config::{CameraConfig, ImageTransport, IngestSection, TfSection};
 pub use decode::{decode_compressed, decode_depth, decode_image};

@@ -335,6 +335,141 @@ mod tests {
         runner.join().unwrap().unwrap();
     }
 
+    #[test]
+    fn a_seeded_flood_of_bad_messages_and_requests_is_counted_and_the_node_keeps_serving() {
+        use crate::ingest::test_messages::{image, tf};
+        use rand::{Rng, SeedableRng};
+        let mut config = Config::default();
+        config.status.period_secs = 0.05;
+        // Every bad request must reach its handler, not the rate bound.
+        config.node.max_requests_per_second = 0.0;
+        let (bus, shutdown, runner) = start(&config);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(34);
+        let camera_topics = [
+            "/camera/color/image_raw",
+            "/camera/color/camera_info",
+            "/camera/depth/image_raw",
+        ];
+        let good_image = cdr::encode(&image(8, 6, "rgb8", 3, 1)).unwrap();
+        let (mut camera_bad, mut tf_bad) = (0u64, 0u64);
+        const MESSAGES: usize = 20_000;
+        for _ in 0..MESSAGES {
+            let kind = rng.random_range(0..6);
+            let payload = match kind {
+                // Garbage behind a broken encapsulation header.
+                0 => {
+                    let mut bytes: Vec<u8> = (0..rng.random_range(0..300))
+                        .map(|_| rng.random())
+                        .collect();
+                    bytes.splice(0..0, [0xff, 0xff, 0, 0]);
+                    bytes
+                }
+                // A good image cut short.
+                1 => good_image[..rng.random_range(0..good_image.len())].to_vec(),
+                // Sizes that disagree with the data: 10^5 x 10^5 claimed, a few bytes sent.
+                2 => {
+                    let mut m = image(8, 6, "rgb8", 3, 1);
+                    m.width = 100_000;
+                    m.height = 100_000;
+                    m.step = 300_000;
+                    cdr::encode(&m).unwrap()
+                }
+                // 0 x 0, and an encoding nobody knows.
+                3 => {
+                    let mut m = image(0, 0, "rgb8", 3, 1);
+                    if rng.random() {
+                        m = image(8, 6, "yuv_magic", 3, 1);
+                    }
+                    cdr::encode(&m).unwrap()
+                }
+                // A transform with a NaN translation or a zero quaternion, stamped in 1970.
+                4 => {
+                    let q = if rng.random() {
+                        [0.0, 0.0, 0.0, 0.0]
+                    } else {
+                        [0.0, 0.0, 0.0, 1.0]
+                    };
+                    cdr::encode(&tf("map", "base", 1, f64::NAN, q)).unwrap()
+                }
+                // Truncated transform messages.
+                _ => {
+                    let bytes =
+                        cdr::encode(&tf("map", "base", 1, 0.0, [0.0, 0.0, 0.0, 1.0])).unwrap();
+                    bytes[..rng.random_range(0..bytes.len() - 1)].to_vec()
+                }
+            };
+            let topic = match kind {
+                4 | 5 => {
+                    tf_bad += 1;
+                    if rng.random() {
+                        "/tf"
+                    } else {
+                        "/tf_static"
+                    }
+                }
+                0 | 1 => {
+                    camera_bad += 1;
+                    camera_topics[rng.random_range(0..camera_topics.len())]
+                }
+                _ => {
+                    camera_bad += 1;
+                    camera_topics[rng.random_range(0..2) * 2]
+                }
+            };
+            bus.inject(topic, &payload);
+        }
+        // Every message is counted once, under a named reason (queue overflow included).
+        let deadline = Instant::now() + Duration::from_secs(20);
+        let status = loop {
+            let json: serde_json::Value =
+                serde_json::from_str(&bus.get_json("groupforward/default/status", b"").unwrap())
+                    .unwrap();
+            let status: NodeStatus = serde_json::from_value(json).unwrap();
+            let camera = &status.cameras[0];
+            if camera.frames_rejected == camera_bad && status.tf_rejected == tf_bad {
+                break status;
+            }
+            assert!(
+                Instant::now() < deadline,
+                "counted {} / {camera_bad} camera and {} / {tf_bad} tf rejections",
+                camera.frames_rejected,
+                status.tf_rejected
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        };
+        assert_eq!(status.cameras[0].frames_received, 0);
+        assert_eq!(status.tf_received, 0);
+        let by_reason: u64 = status.rejections.iter().map(|r| r.count).sum();
+        assert_eq!(by_reason, camera_bad + tf_bad, "{:?}", status.rejections);
+        assert!(status.rejections.iter().all(|r| !r.reason.is_empty()));
+        // Bad requests to every service and the JSON API: each an error, none a panic.
+        let services = [
+            "/groupforward/refer",
+            "/groupforward/list_instances",
+            "/groupforward/get_instance",
+            "/groupforward/save_map",
+            "/groupforward/load_map",
+        ];
+        for i in 0..2_000 {
+            let bytes: Vec<u8> = (0..rng.random_range(0..64)).map(|_| rng.random()).collect();
+            let mut request = vec![0xff, 0xff, 0, 0];
+            request.extend(bytes);
+            assert!(bus.call(services[i % services.len()], &request).is_err());
+            let api = ["refer", "instances", "get_instance", "nothing"][i % 4];
+            let _ = bus.get_json(&format!("groupforward/default/{api}"), &request);
+        }
+        // And it still serves: a good request is answered.
+        let list = bus
+            .call(
+                "/groupforward/list_instances",
+                &cdr::encode(&ListInstancesRequest::default()).unwrap(),
+            )
+            .unwrap();
+        let _: ListInstancesResponse = cdr::decode(&list).unwrap();
+        shutdown.store(true, Ordering::Relaxed);
+        runner.join().expect("the node never panicked").unwrap();
+    }
+
     /// A map with one instance: a small cube of Gaussians.
     fn one_instance_map() -> SceneMap {
         use crate::frame::WindowInstance;
