@@ -79,7 +79,8 @@ fn time_of(nanos: i64) -> Time {
 /// The map's object list as `groupforward_msgs/Instance`: each instance's gravity-aligned box
 /// (pose = centre and yaw about z, in the map frame; size along the box's axes), named by the
 /// `hypotheses` best phrases of `vocabulary` for its semantic prototype. Structure (walls,
-/// floor: prototypes named `other`) stays in the map and out of the list.
+/// floor: prototypes named `other`) and small pieces named unsurely stay in the map and out of
+/// the list (`Vocabulary::is_listed`).
 pub fn instance_messages(
     map: &SceneMap,
     vocabulary: Option<&Vocabulary>,
