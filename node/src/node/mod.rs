@@ -228,6 +228,19 @@ mod tests {
         (bus, shutdown, runner)
     }
 
+    /// The node's status as its JSON API answers it.
+    fn status_json(bus: &MemoryTransport) -> serde_json::Value {
+        serde_json::from_str(&bus.get_json("groupforward/default/status", b"").unwrap()).unwrap()
+    }
+
+    /// `list_instances` with the default request, as a client calls it.
+    fn list_instances(bus: &MemoryTransport) -> crate::transport::Result<Vec<u8>> {
+        bus.call(
+            "/groupforward/list_instances",
+            &cdr::encode(&ListInstancesRequest::default()).unwrap(),
+        )
+    }
+
     #[test]
     fn run_counts_frames_serves_and_publishes_status_over_memory_transport() {
         let mut config = Config::default();
@@ -248,9 +261,7 @@ mod tests {
         bus.inject("/camera/color/image_raw", b"garbage");
         let deadline = Instant::now() + Duration::from_secs(5);
         loop {
-            let json: serde_json::Value =
-                serde_json::from_str(&bus.get_json("groupforward/default/status", b"").unwrap())
-                    .unwrap();
+            let json = status_json(&bus);
             if json["cameras"][0]["frames_received"] == 3
                 && json["cameras"][0]["frames_rejected"] == 1
             {
@@ -263,12 +274,7 @@ mod tests {
             );
             std::thread::sleep(Duration::from_millis(10));
         }
-        let list = bus
-            .call(
-                "/groupforward/list_instances",
-                &cdr::encode(&ListInstancesRequest::default()).unwrap(),
-            )
-            .unwrap();
+        let list = list_instances(&bus).unwrap();
         let list: ListInstancesResponse = cdr::decode(&list).unwrap();
         assert!(list.instances.is_empty());
         assert!(bus.call("/groupforward/list_instances", b"bad").is_err());
@@ -295,10 +301,7 @@ mod tests {
         config.status.period_secs = 0.05;
         config.node.max_requests_per_second = 2.0;
         let (bus, shutdown, runner) = start(&config);
-        let request = cdr::encode(&ListInstancesRequest::default()).unwrap();
-        let answers: Vec<_> = (0..20)
-            .map(|_| bus.call("/groupforward/list_instances", &request))
-            .collect();
+        let answers: Vec<_> = (0..20).map(|_| list_instances(&bus)).collect();
         let taken = answers.iter().filter(|a| a.is_ok()).count();
         // The burst (2), plus what refilled while the 20 calls ran (well under half a second).
         assert!((2..=3).contains(&taken), "{taken} taken");
@@ -312,9 +315,7 @@ mod tests {
         assert!(bus.get_json("groupforward/default/instances", b"").is_err());
         let deadline = Instant::now() + Duration::from_secs(5);
         loop {
-            let json: serde_json::Value =
-                serde_json::from_str(&bus.get_json("groupforward/default/status", b"").unwrap())
-                    .unwrap();
+            let json = status_json(&bus);
             let limited = json["rejections"]
                 .as_array()
                 .and_then(|r| r.iter().find(|r| r["reason"] == "request_rate_limited"))
@@ -330,7 +331,7 @@ mod tests {
         }
         // The bucket refills at the rate: a request half a second later is taken.
         std::thread::sleep(Duration::from_millis(600));
-        assert!(bus.call("/groupforward/list_instances", &request).is_ok());
+        assert!(list_instances(&bus).is_ok());
         shutdown.store(true, Ordering::Relaxed);
         runner.join().unwrap().unwrap();
     }
@@ -421,9 +422,7 @@ mod tests {
         // Every message is counted once, under a named reason (queue overflow included).
         let deadline = Instant::now() + Duration::from_secs(20);
         let status = loop {
-            let json: serde_json::Value =
-                serde_json::from_str(&bus.get_json("groupforward/default/status", b"").unwrap())
-                    .unwrap();
+            let json = status_json(&bus);
             let status: NodeStatus = serde_json::from_value(json).unwrap();
             let camera = &status.cameras[0];
             if camera.frames_rejected == camera_bad && status.tf_rejected == tf_bad {
@@ -459,12 +458,7 @@ mod tests {
             let _ = bus.get_json(&format!("groupforward/default/{api}"), &request);
         }
         // And it still serves: a good request is answered.
-        let list = bus
-            .call(
-                "/groupforward/list_instances",
-                &cdr::encode(&ListInstancesRequest::default()).unwrap(),
-            )
-            .unwrap();
+        let list = list_instances(&bus).unwrap();
         let _: ListInstancesResponse = cdr::decode(&list).unwrap();
         shutdown.store(true, Ordering::Relaxed);
         runner.join().expect("the node never panicked").unwrap();
@@ -531,12 +525,7 @@ mod tests {
         config.map.file = Some(file.display().to_string());
         let (bus, shutdown, runner) = start(&config);
         let list = |bus: &MemoryTransport| -> Vec<Instance> {
-            let reply = bus
-                .call(
-                    "/groupforward/list_instances",
-                    &cdr::encode(&ListInstancesRequest::default()).unwrap(),
-                )
-                .unwrap();
+            let reply = list_instances(bus).unwrap();
             cdr::decode::<ListInstancesResponse>(&reply)
                 .unwrap()
                 .instances
@@ -627,12 +616,7 @@ mod tests {
         // The next start restores it; with save_on_exit off, stopping leaves the file as it was.
         config.map.save_on_exit = false;
         let (bus, shutdown, runner) = start(&config);
-        let reply = bus
-            .call(
-                "/groupforward/list_instances",
-                &cdr::encode(&ListInstancesRequest::default()).unwrap(),
-            )
-            .unwrap();
+        let reply = list_instances(&bus).unwrap();
         let listed: ListInstancesResponse = cdr::decode(&reply).unwrap();
         assert_eq!(listed.instances.len(), 2);
         let one_file = dir.path().join("one.gfmap");
