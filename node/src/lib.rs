@@ -18,6 +18,7 @@
 //! | [`model`] | ONNX models through `ort` (runtime discovery, manifests, runners); its config section |
 //! | [`group`] | HDBSCAN over instance embeddings, softmax assignment, semantic prototypes and naming |
 //! | [`graph`] | the persistent instance map: fusion across windows, scene graph, snapshots |
+//! | [`exposure`] | exposure compensation of keyframes (auto-exposure hunting), measured on shared surface |
 //! | [`window`] | keyframe selection and one window pass (model → lifting → grouping → prototypes) |
 //! | [`refer`] | referring (RSRF): parse, retrieve, reason (built-in or a VLM), evidence, answers |
 //! | [`config`] | assembles the stages' sections into the node's YAML config |
@@ -31,6 +32,7 @@
 pub mod config;
 pub mod demo;
 pub mod eval;
+pub mod exposure;
 pub mod frame;
 pub mod graph;
 pub mod group;

@@ -10,6 +10,7 @@ use std::collections::VecDeque;
 
 use serde::{Deserialize, Serialize};
 
+use crate::exposure::ExposureTracker;
 use crate::frame::{Keyframe, SyncedFrame, WindowInstance, WindowView};
 use crate::graph::{FusionReport, GraphError, SceneMap};
 use crate::group::cleaning::{
@@ -51,6 +52,9 @@ pub struct WindowSection {
     /// Compute each keyframe's semantic features when it arrives (while the worker would wait),
     /// so a window pass only computes its newest view's; off: every view's in the pass.
     pub features_ahead: bool,
+    /// Bring each keyframe's colour to the camera's running exposure (auto-exposure hunting),
+    /// measured on the surface it shares with the previous keyframe ([`crate::exposure`]).
+    pub exposure_compensation: bool,
 }
 
 impl Default for WindowSection {
@@ -62,6 +66,7 @@ impl Default for WindowSection {
             max_interval_secs: 1.0,
             max_keyframes: 32,
             features_ahead: true,
+            exposure_compensation: true,
         }
     }
 }
@@ -73,6 +78,7 @@ pub struct Keyframes {
     frames: VecDeque<SyncedFrame>,
     /// Keyframes added since the last window was taken.
     fresh: usize,
+    exposure: ExposureTracker,
 }
 
 impl Keyframes {
@@ -104,13 +110,22 @@ impl Keyframes {
             }
         };
         if keep {
-            self.frames.push_back(frame.clone());
+            let mut kept = frame.clone();
+            if p.exposure_compensation {
+                self.exposure.compensate(&mut kept, self.frames.back());
+            }
+            self.frames.push_back(kept);
             self.fresh += 1;
             while self.frames.len() > p.max_keyframes.max(p.views) {
                 self.frames.pop_front();
             }
         }
         keep
+    }
+
+    /// The newest keyframe as kept (exposure compensated).
+    pub fn newest(&self) -> Option<&SyncedFrame> {
+        self.frames.back()
     }
 
     /// The next window once `views` new keyframes have arrived since the last one (windows do
@@ -141,8 +156,11 @@ pub struct WindowOutput {
     /// Why this window's instances carry no semantic prototype, when a semantic model was given
     /// but failed (the window is kept: geometry alone then associates it).
     pub semantics_error: Option<String>,
-    /// RGB-D: model pixels without valid sensor depth (ingest marked them), never lifted.
+    /// RGB-D: model pixels without valid sensor depth (ingest marked them) that were not lifted.
     pub invalid_depth_pixels: usize,
+    /// RGB-D: model pixels without valid sensor depth lifted at the model's own depth, which a
+    /// measured neighbour agrees with ([`crate::model::reconstruction::MODEL_DEPTH_AGREEMENT`]).
+    pub model_depth_pixels: usize,
     /// Why the window built nothing (no valid depth in any view); `None` when it ran.
     pub skipped: Option<String>,
     /// Views whose semantic features came computed ahead from the keyframe cache.
@@ -303,9 +321,11 @@ pub fn pass_with_cache(
     let lifted = times.time(Stage::Lift, || {
         // RGB-D: geometry from the depth camera (the eval's recall at IoU 0.5 doubles against
         // the model's own depth), instances from the model.
-        if model.mode() == InputMode::Rgbd {
-            use_sensor_depth(&mut prediction, &views);
-        }
+        let from_model = if model.mode() == InputMode::Rgbd {
+            use_sensor_depth(&mut prediction, &views)
+        } else {
+            0
+        };
         let invalid = prediction
             .depth
             .iter()
@@ -313,9 +333,9 @@ pub fn pass_with_cache(
             .count();
         model
             .to_gaussians(&prediction, &views)
-            .map(|g| (g, invalid))
+            .map(|g| (g, invalid, from_model))
     });
-    let (gaussians, invalid_depth_pixels) = lifted?;
+    let (gaussians, invalid_depth_pixels, model_depth_pixels) = lifted?;
     if gaussians.is_empty() {
         return Ok(WindowOutput {
             instances: Vec::new(),
@@ -324,6 +344,7 @@ pub fn pass_with_cache(
             noise: 0,
             semantics_error: None,
             invalid_depth_pixels,
+            model_depth_pixels,
             skipped: Some(format!(
                 "no valid depth in any of the {} views: nothing to lift",
                 frames.len()
@@ -478,6 +499,7 @@ pub fn pass_with_cache(
         noise,
         semantics_error,
         invalid_depth_pixels,
+        model_depth_pixels,
         skipped: None,
         features_cached,
         model_depth,

@@ -15,7 +15,7 @@ use groupforward::group::semantics::{default_vocabulary, OTHER_PHRASE};
 use groupforward::group::{group, GroupingParams};
 use groupforward::model::manifest::InputMode;
 use groupforward::model::reconstruction::{
-    lifted_pixels, use_sensor_depth, ReconstructionModel, View,
+    lifted_pixels, use_sensor_depth, ReconstructionModel, View, MODEL_DEPTH_AGREEMENT,
 };
 use groupforward::model::semantic::SemanticModel;
 use groupforward::model::text::TextEncoder;
@@ -464,7 +464,8 @@ fn with_effects(index: u64, preset: Preset) -> Simulation {
 }
 
 #[test]
-fn pixels_without_valid_depth_never_become_gaussians_and_a_window_without_any_builds_nothing() {
+fn pixels_without_valid_depth_become_gaussians_only_where_the_models_depth_continues_a_measured_neighbour(
+) {
     init_runtime(None).unwrap_or_else(|e| panic!("{e}"));
     let mut model = ReconstructionModel::load(
         &models().join("groupforward-mini-rgbd.toml"),
@@ -475,26 +476,57 @@ fn pixels_without_valid_depth_never_become_gaussians_and_a_window_without_any_bu
     let frames = window_frames(&with_effects(0, Preset::Dropout(0.3)));
     let views: Vec<View> = frames.iter().map(View::from).collect();
     let mut prediction = model.predict(&views).unwrap();
-    use_sensor_depth(&mut prediction, &views);
+    let model_depth = prediction.depth.clone();
+    let from_model = use_sensor_depth(&mut prediction, &views);
     let (w, h) = (prediction.width, prediction.height);
     let (tw, th) = (frames[0].rgb.width as usize, frames[0].rgb.height as usize);
-    let lifted = lifted_pixels(&prediction);
-    let mut invalid_seen = 0;
-    for i in 0..prediction.depth.len() {
+    let sensor_at = |i: usize| {
         let (v, y, x) = (i / (w * h), i % (w * h) / w, i % w);
         let sx = ((x as f64 + 0.5) * tw as f64 / w as f64) as usize;
         let sy = ((y as f64 + 0.5) * th as f64 / h as f64) as usize;
-        let sensor = frames[v].depth.as_ref().unwrap().metres[sy * tw + sx];
-        let valid = sensor.is_finite() && sensor > 0.0;
-        invalid_seen += usize::from(!valid);
-        assert_eq!(lifted.binary_search(&i).is_ok(), valid, "pixel {i}");
-        if valid {
+        frames[v].depth.as_ref().unwrap().metres[sy * tw + sx]
+    };
+    let valid = |z: f32| z.is_finite() && z > 0.0;
+    let lifted = lifted_pixels(&prediction);
+    let (mut invalid_seen, mut invalid_lifted) = (0, 0);
+    for (i, &model_z) in model_depth.iter().enumerate() {
+        let sensor = sensor_at(i);
+        let is_lifted = lifted.binary_search(&i).is_ok();
+        if valid(sensor) {
+            assert!(is_lifted, "pixel {i} has a measurement");
             assert_eq!(
                 prediction.depth[i], sensor,
                 "pixel {i} is lifted at its measurement"
             );
+            continue;
+        }
+        invalid_seen += 1;
+        let (x, y) = (i % w, i % (w * h) / w);
+        let neighbours = [
+            (x > 0).then(|| i - 1),
+            (x + 1 < w).then(|| i + 1),
+            (y > 0).then(|| i - w),
+            (y + 1 < h).then(|| i + w),
+        ];
+        let agrees = neighbours.into_iter().flatten().any(|j| {
+            let s = sensor_at(j);
+            valid(s) && (s - model_z).abs() <= MODEL_DEPTH_AGREEMENT * s
+        });
+        assert_eq!(is_lifted, agrees, "pixel {i} without a measurement");
+        if is_lifted {
+            invalid_lifted += 1;
+            assert_eq!(
+                prediction.depth[i], model_depth[i],
+                "pixel {i} at the model's depth"
+            );
         }
     }
+    assert_eq!(invalid_lifted, from_model);
+    // Both kinds occur: the rule is not all or nothing on this window.
+    assert!(
+        invalid_lifted > 0 && invalid_lifted < invalid_seen,
+        "{invalid_lifted} of {invalid_seen}"
+    );
     assert!(invalid_seen > prediction.depth.len() / 5, "{invalid_seen}");
 
     // No valid depth anywhere: nothing is built, and the output says why.

@@ -101,6 +101,8 @@ pub struct Scored {
     pub per_scene: Vec<(String, Summary, usize)>,
     pub window_times: Vec<StageTimes>,
     pub depth: DepthValidity,
+    pub model_pixels_without_depth: u64,
+    pub lifted_at_model_depth: u64,
 }
 
 /// Replay each scene through the node's stages with `window_models` and score its map, with a
@@ -149,6 +151,8 @@ impl Scored {
         ));
         self.window_times.extend(run.window_times.iter().cloned());
         self.depth.add(&run.depth);
+        self.model_pixels_without_depth += run.model_pixels_without_depth;
+        self.lifted_at_model_depth += run.lifted_at_model_depth;
         self.per_scene
             .push((run.scene.clone(), counts.summary(), run.windows.len()));
     }
@@ -178,6 +182,8 @@ pub fn eval_map(
         per_scene,
         window_times,
         depth,
+        model_pixels_without_depth,
+        lifted_at_model_depth,
     } = score_scenes(files, &config, &mut window_models, "eval map")?;
     let summary = total.summary();
     let mut csv = csv_writer(&out.join("objects.csv"))?;
@@ -245,6 +251,8 @@ pub fn eval_map(
             "missing": depth.missing,
             "out_of_range": depth.out_of_range,
             "isolated": depth.isolated,
+            "model_pixels_without_sensor_depth": model_pixels_without_depth,
+            "lifted_at_model_depth": lifted_at_model_depth,
         },
         "window_millis": {
             "p50": window.map_or(0.0, |w| w.p50_ms),
@@ -272,12 +280,14 @@ pub fn eval_map(
     std::fs::write(out.join("summary.md"), &table)?;
     print!("{table}");
     println!(
-        "depth: {:.1}% of {} pixels invalid ({} missing, {} out of range, {} isolated), none lifted",
+        "depth: {:.1}% of {} pixels invalid ({} missing, {} out of range, {} isolated); of {} model pixels without depth, {} lifted at the model's depth (a measured neighbour agrees), the rest not lifted",
         100.0 * invalid_fraction(&depth),
         depth.pixels,
         depth.missing,
         depth.out_of_range,
-        depth.isolated
+        depth.isolated,
+        model_pixels_without_depth,
+        lifted_at_model_depth
     );
     println!(
         "window pass to map update: {}; wrote {}",

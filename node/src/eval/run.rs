@@ -50,8 +50,12 @@ pub struct SceneRun {
     /// Model pass to map update, per window and stage.
     pub window_times: Vec<StageTimes>,
     pub frames: usize,
-    /// Depth pixels ingest received, and why some were invalid (never lifted).
+    /// Depth pixels ingest received, and why some were invalid.
     pub depth: DepthValidity,
+    /// Window pixels (model resolution) without valid sensor depth, and how many of them were
+    /// lifted at the model's own depth because a measured neighbour agrees.
+    pub model_pixels_without_depth: u64,
+    pub lifted_at_model_depth: u64,
     /// The final map (what referring queries are asked on).
     pub map: SceneMap,
 }
@@ -195,6 +199,7 @@ pub fn replay_scene_with(
     let mut map = SceneMap::default();
     let mut windows = Vec::new();
     let mut window_times = Vec::new();
+    let (mut model_pixels_without_depth, mut lifted_at_model_depth) = (0u64, 0u64);
     let mut ahead = Vec::new();
     models.set_views(config.window.views);
     let stream =
@@ -228,6 +233,9 @@ pub fn replay_scene_with(
                 }
             }
             let output = models.pass(&frames)?;
+            model_pixels_without_depth +=
+                (output.invalid_depth_pixels + output.model_depth_pixels) as u64;
+            lifted_at_model_depth += output.model_depth_pixels as u64;
             on_window(&frames, &output, models)?;
             // Scoring's boxes, outside the timed stages.
             let boxes: Vec<OrientedBox> = output
@@ -268,6 +276,8 @@ pub fn replay_scene_with(
         window_times,
         frames: recorded.frames,
         depth,
+        model_pixels_without_depth,
+        lifted_at_model_depth,
         map,
     })
 }

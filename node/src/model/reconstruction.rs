@@ -175,30 +175,61 @@ fn resize_depth(depth: &DepthImage, width: usize, height: usize) -> Vec<f32> {
     out
 }
 
+/// Where sensor depth is missing, the model's own depth is trusted when it lies within this
+/// fraction of a valid 4-neighbour's sensor depth: the pixel then continues a measured surface.
+/// Depth cameras lose the pixels along every depth edge (`--effects realistic`: 8 cm edges), which
+/// are an object's outline; not lifting them at all thins every object and takes thin parts
+/// (legs, poles) away. On benchmark 0-9 with `--effects realistic` this rule gave recall@0.25 /
+/// precision 64.9 / 69.4 % against 59.7 / 66.7 % without it; 2 % gave 61.0 / 66.2, 10 % 62.3 /
+/// 68.6, and trusting every such pixel 58.4 / 65.2 (holes' model depth is a guess).
+pub const MODEL_DEPTH_AGREEMENT: f32 = 0.05;
+
 /// Replace a prediction's depth by the views' sensor depth at the model resolution (nearest
-/// sample, so no depth is averaged across an edge), and invalid sensor depth (NaN, 0, ∞) by NaN,
-/// so that such pixels are not lifted. RGB-D mode: geometry comes from the depth camera, which
-/// measures it, and instances from the model's embeddings. Views without depth keep the model's.
-pub fn use_sensor_depth(prediction: &mut Prediction, views: &[View<'_>]) {
+/// sample, so no depth is averaged across an edge). Where the sensor gave no valid depth (NaN, 0,
+/// ∞) the model's own depth stays if a valid neighbour agrees with it ([`MODEL_DEPTH_AGREEMENT`]),
+/// else the pixel becomes NaN and is not lifted. RGB-D mode: geometry comes from the depth
+/// camera, which measures it, and instances from the model's embeddings. Views without depth keep
+/// the model's. Returns the pixels kept at the model's depth.
+pub fn use_sensor_depth(prediction: &mut Prediction, views: &[View<'_>]) -> usize {
+    let valid = |z: f32| z.is_finite() && z > 0.0;
     let (w, h) = (prediction.width, prediction.height);
     let plane = w * h;
+    let mut from_model = 0;
     for (v, view) in views.iter().enumerate().take(prediction.views) {
         let Some(depth) = view.depth else { continue };
         if depth.width == 0 || depth.height == 0 {
             continue;
         }
         let sensor = resize_depth(depth, w, h);
-        for (out, d) in prediction.depth[v * plane..(v + 1) * plane]
-            .iter_mut()
-            .zip(sensor)
-        {
-            *out = if d.is_finite() && d > 0.0 {
-                d
+        let out = &mut prediction.depth[v * plane..(v + 1) * plane];
+        for (i, &measured) in sensor.iter().enumerate() {
+            if valid(measured) {
+                out[i] = measured;
+                continue;
+            }
+            let model = out[i];
+            let (x, y) = (i % w, i / w);
+            let agrees = valid(model)
+                && [
+                    (x > 0).then(|| i - 1),
+                    (x + 1 < w).then(|| i + 1),
+                    (y > 0).then(|| i - w),
+                    (y + 1 < h).then(|| i + w),
+                ]
+                .into_iter()
+                .flatten()
+                .any(|j| {
+                    valid(sensor[j])
+                        && (sensor[j] - model).abs() <= MODEL_DEPTH_AGREEMENT * sensor[j]
+                });
+            if agrees {
+                from_model += 1;
             } else {
-                f32::NAN
-            };
+                out[i] = f32::NAN;
+            }
         }
     }
+    from_model
 }
 
 /// Flat pixel index (view-major, row-major at the model resolution) of every Gaussian that

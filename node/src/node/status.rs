@@ -79,7 +79,7 @@ impl Node {
                 match store.take_window() {
                     // The window's newest frame is computed in the window itself.
                     Some(window) => step.windows.push(window),
-                    None => step.keyframes.push(frame),
+                    None => step.keyframes.extend(store.newest().cloned()),
                 }
             }
         }
