@@ -41,6 +41,11 @@ pub struct ZenohSection {
     pub multicast_scouting: bool,
     /// ROS_DOMAIN_ID, the first chunk of every rmw_zenoh key.
     pub domain_id: u32,
+    /// A zenoh JSON5 config file read first (the same format as rmw_zenoh's
+    /// `ZENOH_SESSION_CONFIG_URI`): user / password authentication, access control (ACL), TLS,
+    /// anything zenoh configures. `mode`, `listen`, `connect` and `multicast_scouting` above
+    /// then override its values. `launch/zenoh_access_control.json5` is a commented example.
+    pub config_file: Option<String>,
 }
 
 impl Default for ZenohSection {
@@ -51,6 +56,7 @@ impl Default for ZenohSection {
             connect: vec!["tcp/localhost:7447".into()],
             multicast_scouting: false,
             domain_id: DEFAULT_DOMAIN_ID,
+            config_file: None,
         }
     }
 }
@@ -140,7 +146,11 @@ fn now_nanos() -> i64 {
 
 /// Build a zenoh config from the node's zenoh section.
 pub fn zenoh_config(section: &ZenohSection) -> Result<zenoh::Config> {
-    let mut config = zenoh::Config::default();
+    let mut config = match &section.config_file {
+        Some(path) => zenoh::Config::from_file(path)
+            .map_err(|e| TransportError::Zenoh(format!("config file {path}: {e}")))?,
+        None => zenoh::Config::default(),
+    };
     let mode = match section.mode {
         ZenohMode::Peer => "peer",
         ZenohMode::Client => "client",

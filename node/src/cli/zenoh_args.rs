@@ -16,6 +16,10 @@ pub struct ZenohArgs {
     /// Zenoh endpoints to listen on, replacing the config's (repeatable).
     #[arg(long)]
     listen: Vec<String>,
+    /// A zenoh JSON5 config (authentication, access control, TLS), replacing the config's
+    /// `zenoh.config_file`.
+    #[arg(long)]
+    zenoh_config: Option<String>,
 }
 
 impl ZenohArgs {
@@ -30,6 +34,9 @@ impl ZenohArgs {
         }
         if !self.listen.is_empty() {
             config.zenoh.listen = self.listen.clone();
+        }
+        if let Some(file) = &self.zenoh_config {
+            config.zenoh.config_file = Some(file.clone());
         }
         Ok(config)
     }
