@@ -6,7 +6,7 @@ PYTHON ?= python3
 VENV := .venv
 STAMP := $(VENV)/.installed-$(shell sha256sum tests/python/requirements.txt | cut -c1-16)
 
-.PHONY: all setup build demo test test-rust test-python lint bench sweep golden clean train-setup train-data train-test
+.PHONY: all setup build demo test test-rust test-python lint bench sweep soak golden clean train-setup train-data train-test
 
 all: test
 
@@ -52,6 +52,11 @@ bench: setup
 # What accuracy costs in time: the settings sweep the README's Pareto chart comes from (~10 min).
 sweep: setup
 	$(CARGO) run -p groupforward -- bench sweep --rounds 2 --out node/doc/bench/sweep
+
+# The reliability soak at full size (10^5 bad messages, a 5-minute two-camera flood; ~7 min).
+# CI runs it at a reduced size (tests/tests/soak.rs).
+soak: setup build
+	$(CARGO) run -p groupforward -- bench soak --out node/doc/bench/soak
 
 # Training (never part of CI): PyTorch and friends into train/.venv, and sim datasets for it.
 train-setup:

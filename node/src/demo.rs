@@ -281,6 +281,20 @@ pub fn call_service<S: RosService>(
     request: &S::Request,
     timeout: Duration,
 ) -> Result<S::Response> {
+    let payload = cdr::encode(request).map_err(|e| DemoError::Protocol(e.to_string()))?;
+    let response = call_service_raw::<S>(session, domain_id, service_name, payload, timeout)?;
+    cdr::decode(&response).map_err(|e| DemoError::Protocol(e.to_string()))
+}
+
+/// [`call_service`] with the request's CDR bytes as they are (well formed or not), returning the
+/// response's bytes.
+pub fn call_service_raw<S: RosService>(
+    session: &zenoh::Session,
+    domain_id: u32,
+    service_name: &str,
+    payload: Vec<u8>,
+    timeout: Duration,
+) -> Result<Vec<u8>> {
     let hash = groupforward_msgs::idl::type_hash(S::TYPE_NAME).map_err(TransportError::from)?;
     let key = rmw_zenoh::data_key(domain_id, service_name, S::TYPE_NAME, &hash)
         .map_err(TransportError::from)?;
@@ -289,13 +303,11 @@ pub fn call_service<S: RosService>(
         source_timestamp: 0,
         source_gid: rmw_zenoh::gid_for_token(&key),
     };
-    let payload = cdr::encode(request).map_err(|e| DemoError::Protocol(e.to_string()))?;
     let get = session
         .get(key)
         .payload(payload)
         .attachment(attachment.encode());
-    let response = first_reply(get, "answer the service", timeout)?;
-    cdr::decode(&response).map_err(|e| DemoError::Protocol(e.to_string()))
+    first_reply(get, "answer the service", timeout)
 }
 
 /// Poll `check` every 20 ms until it returns `Some`, or fail after `timeout`.
@@ -316,6 +328,23 @@ pub fn wait_for<T>(
     }
 }
 
+/// An embedded zenoh peer (no router to connect to) for `config`'s node: the session clients of
+/// this process share, and the node's transport on it.
+pub fn embedded_node(config: &mut Config) -> Result<(zenoh::Session, ZenohTransport)> {
+    config.zenoh = ZenohSection {
+        connect: Vec::new(),
+        ..ZenohSection::default()
+    };
+    let session = open_session(&config.zenoh)?;
+    let transport = ZenohTransport::new(
+        session.clone(),
+        config.zenoh.domain_id,
+        &config.node.namespace,
+        &config.node.name,
+    )?;
+    Ok((session, transport))
+}
+
 pub fn run_demo(options: &DemoOptions) -> Result<DemoReport> {
     let started = Instant::now();
     let mut config = Config::default();
@@ -334,19 +363,8 @@ pub fn run_demo(options: &DemoOptions) -> Result<DemoReport> {
         .join("target/demo/evidence");
     let _ = std::fs::remove_dir_all(&evidence_dir);
     config.refer.evidence_dir = evidence_dir.display().to_string();
-    let embedded = ZenohSection {
-        connect: Vec::new(),
-        ..ZenohSection::default()
-    };
-    config.zenoh = embedded.clone();
-    let session = open_session(&embedded)?;
+    let (session, node_transport) = embedded_node(&mut config)?;
     let domain = config.zenoh.domain_id;
-    let node_transport = ZenohTransport::new(
-        session.clone(),
-        domain,
-        &config.node.namespace,
-        &config.node.name,
-    )?;
     // A subscriber of every output topic, as RViz or a navigation stack would be.
     let listener = ZenohTransport::new(session.clone(), domain, "/", "demo_listener")?;
     let output_endpoints = crate::node::outputs::OutputEndpoints::declare(&config)?;

@@ -25,6 +25,7 @@
 //! | [`node`] | the loop: input queue, window worker, services, status |
 //! | [`replay`] | publish a rosbag2 MCAP bag as a live robot would |
 //! | [`eval`] | sim scenes through the node's stages, the map scored against ground truth |
+//! | [`soak`] | the node under hostile traffic and a two-camera flood, for `bench soak` |
 //! | [`demo`] | sim scene → bag → replay → node → queries, in one process over an embedded zenoh peer |
 //!
 //! The command line (`src/cli/`, one file per subcommand) is the binary's, not the library's.
@@ -44,6 +45,7 @@ pub mod recon;
 pub mod record;
 pub mod refer;
 pub mod replay;
+pub mod soak;
 pub mod timing;
 pub mod transport;
 pub mod window;

@@ -7,7 +7,7 @@
 //! process, for tests of the node loop without a network.
 
 use std::collections::HashMap;
-use std::sync::atomic::{AtomicI64, AtomicU32, Ordering};
+use std::sync::atomic::{AtomicI64, AtomicU32, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 
 use groupforward_msgs::rmw_zenoh::{
@@ -142,6 +142,14 @@ fn now_nanos() -> i64 {
     std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .map_or(0, |d| d.as_nanos() as i64)
+}
+
+/// 1, 10, 100, …: the counts at which a repeated failure is logged again.
+fn is_power_of_ten(mut n: u64) -> bool {
+    while n >= 10 && n % 10 == 0 {
+        n /= 10;
+    }
+    n == 1
 }
 
 /// Build a zenoh config from the node's zenoh section.
@@ -339,6 +347,7 @@ impl Transport for ZenohTransport {
         self.announce(EntityKind::ServiceServer, service)?;
         tracing::debug!(%key, "serving");
         let name = service.name.clone();
+        let failures = AtomicU64::new(0);
         let queryable = self
             .session
             .declare_queryable(key)
@@ -363,7 +372,14 @@ impl Transport for ZenohTransport {
                         .attachment(attachment.encode())
                         .wait(),
                     Err(message) => {
-                        tracing::warn!(service = %name, "request failed: {message}");
+                        // Hostile clients must not flood the log: the first failure and every
+                        // power of ten are logged, the rest at debug (the status counts them).
+                        let n = failures.fetch_add(1, Ordering::Relaxed) + 1;
+                        if is_power_of_ten(n) {
+                            tracing::warn!(service = %name, failed = n, "request failed: {message}");
+                        } else {
+                            tracing::debug!(service = %name, "request failed: {message}");
+                        }
                         query.reply_err(message).wait()
                     }
                 };
@@ -525,5 +541,16 @@ impl Transport for Arc<MemoryTransport> {
             json.push((prefix.trim_end_matches('/').to_owned(), handler));
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn repeated_request_failures_are_logged_at_powers_of_ten_only() {
+        let logged: Vec<u64> = (0..=20_000).filter(|&n| is_power_of_ten(n)).collect();
+        assert_eq!(logged, [1, 10, 100, 1_000, 10_000]);
     }
 }

@@ -98,6 +98,31 @@ pub enum BenchCommand {
         #[arg(long, default_value = "target/bench/sweep")]
         out: PathBuf,
     },
+    /// The node under hostile traffic and load (shipped models, two RGB-D cameras, one process
+    /// over an embedded zenoh peer): malformed messages and requests, then both cameras flooding
+    /// while referring queries come in, then the same bag twice through the stages; writes
+    /// `<out>/summary.json`.
+    Soak {
+        /// CI size: 10^4 bad messages, 500 bad requests, a 15 s flood.
+        #[arg(long)]
+        quick: bool,
+        #[arg(long, default_value_t = 100_000)]
+        messages: usize,
+        #[arg(long, default_value_t = 2_000)]
+        requests: usize,
+        #[arg(long, default_value_t = 300.0)]
+        flood_secs: f64,
+        /// Frames per second per camera during the flood.
+        #[arg(long, default_value_t = 60.0)]
+        camera_hz: f64,
+        /// Referring queries per second during the flood.
+        #[arg(long, default_value_t = 20.0)]
+        query_hz: f64,
+        #[arg(long, default_value_t = 34)]
+        seed: u64,
+        #[arg(long, default_value = "target/bench/soak")]
+        out: PathBuf,
+    },
     /// The map against random depth dropout: `eval map` on the same scenes with each level's
     /// `dropout:<p>` effect (0 = clean); writes `<out>.csv`, `<out>.md` and `<out>.svg`.
     Dropout {
@@ -326,6 +351,36 @@ pub fn run(command: BenchCommand) -> Result<()> {
             let scenes = if quick { 1 } else { scenes };
             let files = crate::eval::split_scenes(&split, first_index, scenes)?;
             crate::bench_sweep::sweep(&files, quick, rounds, &out)
+        }
+        BenchCommand::Soak {
+            quick,
+            messages,
+            requests,
+            flood_secs,
+            camera_hz,
+            query_hz,
+            seed,
+            out,
+        } => {
+            let (messages, requests, flood_secs) = if quick {
+                (10_000, 500, 15.0)
+            } else {
+                (messages, requests, flood_secs)
+            };
+            crate::bench_soak::soak(
+                &groupforward::soak::SoakOptions {
+                    scene: groupforward_sim::scene::SceneFile::builtin("two_chairs").ok_or_else(
+                        || anyhow::anyhow!("the built-in two_chairs scene is missing"),
+                    )?,
+                    bad_messages: messages,
+                    bad_requests: requests,
+                    flood_secs,
+                    camera_hz,
+                    query_hz,
+                    seed,
+                },
+                &out,
+            )
         }
         BenchCommand::Dropout {
             levels,

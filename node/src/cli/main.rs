@@ -4,6 +4,7 @@
 mod bench;
 mod bench_outputs;
 mod bench_refer;
+mod bench_soak;
 mod bench_support;
 mod bench_sweep;
 mod demo;

@@ -23,7 +23,6 @@ pub mod sync;
 pub mod tf;
 pub mod validate;
 
-#[cfg(test)]
 pub(crate) mod test_messages;
 
 pub use config::{CameraConfig, ImageTransport, IngestSection, TfSection};

@@ -338,7 +338,7 @@ mod tests {
 
     #[test]
     fn a_seeded_flood_of_bad_messages_and_requests_is_counted_and_the_node_keeps_serving() {
-        use crate::ingest::test_messages::{image, tf};
+        use crate::ingest::test_messages::{hostile_message, HostileTarget};
         use rand::{Rng, SeedableRng};
         let mut config = Config::default();
         config.status.period_secs = 0.05;
@@ -351,72 +351,22 @@ mod tests {
             "/camera/color/camera_info",
             "/camera/depth/image_raw",
         ];
-        let good_image = cdr::encode(&image(8, 6, "rgb8", 3, 1)).unwrap();
         let (mut camera_bad, mut tf_bad) = (0u64, 0u64);
         const MESSAGES: usize = 20_000;
         for _ in 0..MESSAGES {
-            let kind = rng.random_range(0..6);
-            let payload = match kind {
-                // Garbage behind a broken encapsulation header.
-                0 => {
-                    let mut bytes: Vec<u8> = (0..rng.random_range(0..300))
-                        .map(|_| rng.random())
-                        .collect();
-                    bytes.splice(0..0, [0xff, 0xff, 0, 0]);
-                    bytes
-                }
-                // A good image cut short.
-                1 => good_image[..rng.random_range(0..good_image.len())].to_vec(),
-                // Sizes that disagree with the data: 10^5 x 10^5 claimed, a few bytes sent.
-                2 => {
-                    let mut m = image(8, 6, "rgb8", 3, 1);
-                    m.width = 100_000;
-                    m.height = 100_000;
-                    m.step = 300_000;
-                    cdr::encode(&m).unwrap()
-                }
-                // 0 x 0, and an encoding nobody knows.
-                3 => {
-                    let mut m = image(0, 0, "rgb8", 3, 1);
-                    if rng.random() {
-                        m = image(8, 6, "yuv_magic", 3, 1);
-                    }
-                    cdr::encode(&m).unwrap()
-                }
-                // A transform with a NaN translation or a zero quaternion, stamped in 1970.
-                4 => {
-                    let q = if rng.random() {
-                        [0.0, 0.0, 0.0, 0.0]
-                    } else {
-                        [0.0, 0.0, 0.0, 1.0]
-                    };
-                    cdr::encode(&tf("map", "base", 1, f64::NAN, q)).unwrap()
-                }
-                // Truncated transform messages.
-                _ => {
-                    let bytes =
-                        cdr::encode(&tf("map", "base", 1, 0.0, [0.0, 0.0, 0.0, 1.0])).unwrap();
-                    bytes[..rng.random_range(0..bytes.len() - 1)].to_vec()
-                }
+            let (target, payload) = hostile_message(&mut rng);
+            let topic = match target {
+                HostileTarget::Image => camera_topics[0],
+                HostileTarget::CameraInfo => camera_topics[1],
+                HostileTarget::Depth => camera_topics[2],
+                HostileTarget::Tf => "/tf",
+                HostileTarget::TfStatic => "/tf_static",
             };
-            let topic = match kind {
-                4 | 5 => {
-                    tf_bad += 1;
-                    if rng.random() {
-                        "/tf"
-                    } else {
-                        "/tf_static"
-                    }
-                }
-                0 | 1 => {
-                    camera_bad += 1;
-                    camera_topics[rng.random_range(0..camera_topics.len())]
-                }
-                _ => {
-                    camera_bad += 1;
-                    camera_topics[rng.random_range(0..2) * 2]
-                }
-            };
+            if target.is_tf() {
+                tf_bad += 1;
+            } else {
+                camera_bad += 1;
+            }
             bus.inject(topic, &payload);
         }
         // Every message is counted once, under a named reason (queue overflow included).
