@@ -76,6 +76,9 @@ pub struct SoakReport {
     pub queries_lost: u64,
     pub query_p50_ms: f64,
     pub query_p99_ms: f64,
+    /// The node's own stage times at the end of the flood (p50 / p99 ms over its recent
+    /// passes): `query` is the service handler alone, without transport and waiting.
+    pub node_stages_after_flood: BTreeMap<String, [f64; 2]>,
     pub replay_hashes: Vec<String>,
     pub replay_hashes_equal: bool,
 }
@@ -479,6 +482,11 @@ pub fn run_soak(options: &SoakOptions, progress: &dyn Fn(&str)) -> Result<SoakRe
             .sum()
     };
     report.flood_frames_dropped_by_queue = overflow(&flood_after) - overflow(&flood_before);
+    report.node_stages_after_flood = flood_after
+        .stages
+        .iter()
+        .map(|t| (t.stage.clone(), [t.p50_ms, t.p99_ms]))
+        .collect();
     report.rss_peak_flood_mb = peak;
 
     shutdown.store(true, Ordering::Relaxed);

@@ -27,7 +27,7 @@ fn describe(r: &SoakReport) -> String {
          referring after the malformed traffic: {} ({} expressions)\n\
          memory: {:.0} MB before, {:.0} MB after the malformed traffic, {:.0} MB peak in the flood, {:.0} MB at the end\n\
          flood: {:.0} s, {} frames from 2 cameras, {} dropped by the input queue (counted)\n\
-         queries: {} sent, {} lost, p50 {:.0} ms, p99 {:.0} ms\n\
+         queries: {} sent, {} lost, p50 {:.0} ms, p99 {:.0} ms (the handler alone: p50 {:.0}, p99 {:.0} ms)\n\
          determinism: map hashes {} ({})\n",
         r.messages_sent,
         r.messages_counted,
@@ -46,6 +46,8 @@ fn describe(r: &SoakReport) -> String {
         r.queries_lost,
         r.query_p50_ms,
         r.query_p99_ms,
+        r.node_stages_after_flood.get("query").map_or(0.0, |t| t[0]),
+        r.node_stages_after_flood.get("query").map_or(0.0, |t| t[1]),
         r.replay_hashes.join(" / "),
         if r.replay_hashes_equal { "equal" } else { "DIFFER" },
     )

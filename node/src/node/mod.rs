@@ -79,6 +79,9 @@ pub fn run(
         &shared,
         outputs_stopped,
     )?;
+    if let Ok(mut s) = shared.lock() {
+        s.snapshot_taker = output_publisher.is_some();
+    }
     // Every interface is declared before the (slow) model load, so peers see the node at once.
     let (windows, worker) = worker::start_window_worker(config, &shared);
     let mut windows = windows;

@@ -18,7 +18,7 @@ use groupforward_msgs::visualization_msgs::MarkerArray;
 use groupforward_msgs::{cdr, RosMessage};
 
 use super::error::Result;
-use super::services::{current_snapshot_and_generation, Shared};
+use super::services::{current_snapshot, current_snapshot_and_generation, Shared};
 use crate::config::Config;
 use crate::outputs::{self, OutputsSection};
 use crate::timing::Stage;
@@ -198,6 +198,16 @@ fn publish_loop(
         };
         let now = Instant::now();
         if !stopping && last_publish.is_some_and(|t| now - t < min_interval) {
+            // Publishing waits for its rate; the referring snapshot of a changed map does not, so
+            // queries find it taken (see `query_snapshot`).
+            let stale = shared
+                .lock()
+                .is_ok_and(|s| s.refer_scene_generation != s.map_generation);
+            if stale {
+                if let Err(e) = current_snapshot(shared) {
+                    tracing::warn!("cannot take the map's snapshot: {e}");
+                }
+            }
             continue;
         }
         let generation = shared.lock().map(|s| s.map_generation).unwrap_or(0);

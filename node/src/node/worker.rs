@@ -164,6 +164,7 @@ pub(super) fn start_window_worker(
                         Ok(report) => {
                             s.view_sources = sources;
                             times.time(Stage::List, || s.refresh_instances());
+                            super::services::snapshot_due(&mut s);
                             let millis = times.total().as_millis() as u64;
                             times.0.push((Stage::Window, times.total()));
                             s.stages.record_all(&times);
