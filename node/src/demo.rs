@@ -363,6 +363,8 @@ pub fn run_demo(options: &DemoOptions) -> Result<DemoReport> {
         .join("target/demo/evidence");
     let _ = std::fs::remove_dir_all(&evidence_dir);
     config.refer.evidence_dir = evidence_dir.display().to_string();
+    // save_map writes the map beside the evidence, wherever the demo was started from.
+    config.map.directory = evidence_dir.parent().map(|dir| dir.display().to_string());
     let (session, node_transport) = embedded_node(&mut config)?;
     let domain = config.zenoh.domain_id;
     // A subscriber of every output topic, as RViz or a navigation stack would be.

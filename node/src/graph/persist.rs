@@ -37,9 +37,30 @@ pub struct MapSection {
     /// finds what the robot mapped; a failed save is logged and the previous file stays.
     pub save_on_exit: bool,
     /// `save_map` / `load_map` request paths are confined to this directory: a relative path
-    /// resolves inside it, and `..` or an absolute path elsewhere is refused. `null`: any path
-    /// the node can read and write (trusted networks only). `file` itself is not confined.
+    /// resolves inside it, and `..` or an absolute path elsewhere is refused. `null`: the
+    /// directory of `file`, or the node's working directory without one (`/` allows any path the
+    /// node can write: trusted networks only). `file` itself is not confined.
     pub directory: Option<String>,
+}
+
+impl MapSection {
+    /// The absolute directory request paths are confined to (see `directory`).
+    pub fn confining_directory(&self) -> std::path::PathBuf {
+        let working = std::env::current_dir().unwrap_or_else(|_| std::path::PathBuf::from("/"));
+        let chosen = match (&self.directory, &self.file) {
+            (Some(directory), _) => std::path::PathBuf::from(directory),
+            (None, Some(file)) => std::path::Path::new(file)
+                .parent()
+                .map(std::path::Path::to_path_buf)
+                .unwrap_or_default(),
+            (None, None) => working.clone(),
+        };
+        if chosen.is_absolute() {
+            chosen
+        } else {
+            working.join(chosen)
+        }
+    }
 }
 
 impl Default for MapSection {
@@ -393,4 +414,42 @@ pub fn save(map: &SceneMap, path: &Path) -> Result<(), PersistError> {
 pub fn load(path: &Path, params: FusionParams) -> Result<SceneMap, PersistError> {
     let bytes = std::fs::read(path).map_err(io(path))?;
     from_bytes(&bytes, params)
+}
+
+#[cfg(test)]
+mod tests {
+    use std::path::PathBuf;
+
+    use super::*;
+
+    #[test]
+    fn map_requests_are_confined_by_default_to_the_snapshot_s_or_the_working_directory() {
+        let working = std::env::current_dir().unwrap_or_else(|e| panic!("{e}"));
+        let section = |file: Option<&str>, directory: Option<&str>| MapSection {
+            file: file.map(str::to_owned),
+            directory: directory.map(str::to_owned),
+            ..MapSection::default()
+        };
+        assert_eq!(section(None, None).confining_directory(), working);
+        assert_eq!(
+            section(Some("/data/maps/robot.gfmap"), None).confining_directory(),
+            PathBuf::from("/data/maps")
+        );
+        assert_eq!(
+            section(Some("maps/robot.gfmap"), None).confining_directory(),
+            working.join("maps")
+        );
+        assert_eq!(
+            section(Some("robot.gfmap"), None).confining_directory(),
+            working
+        );
+        assert_eq!(
+            section(Some("/data/maps/robot.gfmap"), Some("/srv/maps")).confining_directory(),
+            PathBuf::from("/srv/maps")
+        );
+        assert_eq!(
+            section(None, Some("/")).confining_directory(),
+            PathBuf::from("/")
+        );
+    }
 }

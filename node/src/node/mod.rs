@@ -42,7 +42,7 @@ pub fn run(
     let queue = Arc::new(InputQueue::new(config.ingest.queue_depth));
     let mut initial = Shared {
         map_file: config.map.file.clone(),
-        map_directory: config.map.directory.clone().map(std::path::PathBuf::from),
+        map_directory: Some(config.map.confining_directory()),
         hypotheses: config.semantics.hypotheses,
         refer: config.refer.clone(),
         world_frame: config.tf.world_frame.clone(),
