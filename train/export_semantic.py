@@ -51,6 +51,12 @@ def main():
     assert worst <= 1e-4, f'ONNX parity {worst} > 1e-4'
     best = summary['best']
     size = onnx_path.stat().st_size
+    # Runs before these fields: no effects, on the CPU.
+    drawn = summary.get('train_effects')
+    effects = f'; sim effects {" + ".join(drawn)} (sim dataset --effects)' if drawn and drawn != ['clean'] else ''
+    device = summary.get('device', 'cpu')
+    trained_on = (f"on {summary['threads']} CPU thread(s)" if device == 'cpu'
+                  else f"on a lent GPU ({device}, {summary['threads']} CPU threads for the data)")
     manifest = f'''# Semantic-mini (the LSeg role), trained here on the simulator by train/train_semantic.py. Not a
 # pretrained model: {parameter_count(model) / 1e6:.2f} M parameters, 16 object classes of small synthetic rooms
 # plus `other`; features live in the all-MiniLM-L6-v2 text space (cosine to a phrase's embedding).
@@ -60,7 +66,7 @@ file = "{args.name}.onnx"
 input_height = {height}
 input_width = {width}
 embedding_dim = {FEATURE_DIM}
-provenance = "trained from scratch on groupforward-sim train split ({summary['train_windows']} windows x 4 views, 128x96) against the int8 all-MiniLM-L6-v2 embeddings of class names and descriptions; checkpoint of step {best['step']} ({best['minutes']:.0f} min) of a {summary['steps']}-step, {summary['minutes']:.0f}-min run on {summary['threads']} CPU thread(s), picked by mIoU on {best['windows']} val windows; benchmarks below on {report['windows']} other val windows; ONNX parity {worst:.1e}; {size / 1e6:.1f} MB"
+provenance = "trained from scratch on groupforward-sim train split ({summary['train_windows']} windows x 4 views, 128x96{effects}) against the int8 all-MiniLM-L6-v2 embeddings of class names and descriptions; checkpoint of step {best['step']} ({best['minutes']:.0f} min) of a {summary['steps']}-step, {summary['minutes']:.0f}-min run {trained_on}, picked by mIoU on {best['windows']} val windows; benchmarks below on {report['windows']} other val windows; ONNX parity {worst:.1e}; {size / 1e6:.1f} MB"
 license = "Apache-2.0"
 
 [normalization]

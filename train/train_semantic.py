@@ -15,6 +15,7 @@ the same with synonyms the model never trained on (`garbage can` for trash bin, 
 """
 
 import argparse
+import copy
 import json
 import sys
 import time
@@ -147,6 +148,7 @@ def main():
     parser.add_argument('--batch', type=int, default=2, help='windows per step (4 views each)')
     parser.add_argument('--lr', type=float, default=2e-3)
     parser.add_argument('--threads', type=int, default=2)
+    parser.add_argument('--device', default='cpu', help='torch device that trains (cpu, cuda); val stays on the CPU')
     parser.add_argument('--eval-every', type=float, default=8.0, help='minutes between val evaluations')
     parser.add_argument('--val-windows', type=int, default=24,
                         help='the last N val windows pick the checkpoint; the rest stay held out for the report')
@@ -174,6 +176,9 @@ def main():
     weights = class_weights(train, len(names), args.class_weight_power)
     selection = range(max(0, len(val) - args.val_windows), len(val))
     model = SemanticMini()
+    device = torch.device(args.device)
+    model.to(device)
+    train_text = names_text.to(device), descriptions_text.to(device), weights.to(device)
     print(f'Semantic-mini: {parameter_count(model) / 1e6:.2f} M parameters; {len(train)} train windows; '
           f'labels {names}; class weights {[round(w, 2) for w in weights.tolist()]}', flush=True)
     loader = torch.utils.data.DataLoader(train, batch_size=args.batch, shuffle=True, drop_last=True)
@@ -197,15 +202,17 @@ def main():
             for group in optimizer.param_groups:
                 group['lr'] = args.lr * (0.1 + 0.9 * 0.5 * (1 + np.cos(np.pi * progress)))
             model.train()
-            images, classes = views_of(batch)
+            images, classes = (tensor.to(device) for tensor in views_of(batch))
             if torch.rand(()) < 0.5:  # left-right mirror: classes do not depend on handedness
                 images, classes = images.flip(-1), classes.flip(-1)
             features = model(images)
             scale = model.logit_scale.exp().clamp(max=100.0)
             size = classes.shape[-2:]
-            name_loss = F.cross_entropy(logits(features, names_text, scale, size), classes, weight=weights)
-            description_loss = F.cross_entropy(logits(features, descriptions_text, scale, size), classes,
-                                               weight=weights)
+            names_on_device, descriptions_on_device, weights_on_device = train_text
+            name_loss = F.cross_entropy(logits(features, names_on_device, scale, size), classes,
+                                        weight=weights_on_device)
+            description_loss = F.cross_entropy(logits(features, descriptions_on_device, scale, size), classes,
+                                               weight=weights_on_device)
             loss = 0.5 * (name_loss + description_loss)
             optimizer.zero_grad()
             loss.backward()
@@ -221,17 +228,20 @@ def main():
             now = time.perf_counter()
             if now - last_eval >= args.eval_every * 60.0:
                 last_eval = now
-                metrics = evaluate(model, val, names, names_text, synonyms_text, selection)
+                on_cpu = copy.deepcopy(model).cpu()
+                metrics = evaluate(on_cpu, val, names, names_text, synonyms_text, selection)
                 print(f'  val: {metrics}', flush=True)
                 if metrics['miou'] > best['miou']:
                     best = dict(metrics, step=step, minutes=elapsed / 60)
-                    torch.save(model.state_dict(), out / 'model.pt')
-    metrics = evaluate(model, val, names, names_text, synonyms_text, selection)
+                    torch.save(on_cpu.state_dict(), out / 'model.pt')
+    on_cpu = copy.deepcopy(model).cpu()
+    metrics = evaluate(on_cpu, val, names, names_text, synonyms_text, selection)
     print(f'final val: {metrics}', flush=True)
     if metrics['miou'] > best['miou']:
         best = dict(metrics, step=step, minutes=(time.perf_counter() - started) / 60)
-        torch.save(model.state_dict(), out / 'model.pt')
+        torch.save(on_cpu.state_dict(), out / 'model.pt')
     summary = {'steps': step, 'minutes': (time.perf_counter() - started) / 60, 'threads': args.threads,
+               'device': args.device, 'train_effects': train.manifest.get('effects'),
                'train_windows': len(train), 'labels': names, 'best': best, 'final': metrics,
                'parameters': parameter_count(model), 'args': vars(args)}
     (out / 'summary.json').write_text(json.dumps(summary, indent=2))
