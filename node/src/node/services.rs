@@ -48,6 +48,8 @@ pub struct Shared {
     pub hypotheses: usize,
     /// Windows that built nothing: no view had valid depth.
     pub windows_skipped: u64,
+    /// Windows fused while a `load_map` replaced the map, and so dropped.
+    pub windows_superseded: u64,
     /// The bound on requests to the services and the JSON API, and the requests it refused.
     pub limiter: super::limit::RequestLimiter,
     pub requests_limited: u64,
@@ -170,6 +172,27 @@ impl Shared {
     pub fn set_map(&mut self, map: SceneMap) {
         self.map = map;
         self.refresh_instances();
+    }
+
+    /// Install a map the worker fused outside the lock into a copy of generation `fused_from`,
+    /// with its instance messages and boxes; refused (and counted) when the map was replaced
+    /// meanwhile (`load_map`), whose content the copy does not hold.
+    pub fn install_fused(
+        &mut self,
+        fused_from: u64,
+        map: SceneMap,
+        instances: Vec<Instance>,
+        boxes: BoxCache,
+    ) -> bool {
+        if self.map_generation != fused_from {
+            self.windows_superseded += 1;
+            return false;
+        }
+        self.map = map;
+        self.instances = instances;
+        self.boxes = boxes;
+        self.map_generation += 1;
+        true
     }
 
     /// Rebuild the instance messages after the map changed in place; the referring snapshot is
@@ -536,7 +559,31 @@ fn answer_refer(shared: &Mutex<Shared>, request: &ReferRequest) -> ReferResponse
                 DVec3::from(v.position),
             ),
         });
-    refer::response::response(&answer, &scene, &gaussians, &world_frame, novel.as_ref())
+    on_query_pool(|| {
+        refer::response::response(&answer, &scene, &gaussians, &world_frame, novel.as_ref())
+    })
+}
+
+/// Threads of the pool that renders answers' masks and clouds.
+const QUERY_THREADS: usize = 2;
+
+/// Run `work` on the queries' own rayon pool: in rayon's global pool an answer's renders queue
+/// behind the window worker's HDBSCAN and the publisher's renders (query p99 4-6 times its
+/// p50 under a two-camera flood). Without the pool (it failed to start), on the caller's.
+fn on_query_pool<T: Send>(work: impl FnOnce() -> T + Send) -> T {
+    static POOL: std::sync::OnceLock<Option<rayon::ThreadPool>> = std::sync::OnceLock::new();
+    let pool = POOL.get_or_init(|| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(QUERY_THREADS)
+            .thread_name(|i| format!("gf-query-{i}"))
+            .build()
+            .map_err(|e| tracing::warn!("no query thread pool ({e}): answers share rayon's"))
+            .ok()
+    });
+    match pool {
+        Some(pool) => pool.install(work),
+        None => work(),
+    }
 }
 
 /// The reason a request over the bound is refused with (and the status counts it under).
@@ -772,6 +819,77 @@ mod tests {
         assert!(lock().refer_scene_building.is_none());
         snapshot(query_snapshot);
         assert!(current(&lock()));
+    }
+
+    #[test]
+    fn a_window_fused_outside_the_lock_is_installed_unless_load_map_replaced_the_map_meanwhile() {
+        let mut s = Shared::default();
+        s.set_map(SceneMap::default());
+        // The worker copies the map at generation 1 and fuses one instance into the copy.
+        let copied_at = s.map_generation;
+        let fused = vec![named("inst_000001", "chair")];
+        assert!(s.install_fused(
+            copied_at,
+            SceneMap::default(),
+            fused.clone(),
+            BoxCache::default()
+        ));
+        assert_eq!(s.map_generation, copied_at + 1);
+        assert_eq!(s.instances.len(), 1);
+        // The next window copies generation 2, but a load_map replaces the map before it is
+        // installed: the window is dropped and counted, the loaded map stays.
+        let copied_at = s.map_generation;
+        s.set_map(SceneMap::default());
+        let loaded = s.map_generation;
+        assert!(!s.install_fused(copied_at, SceneMap::default(), fused, BoxCache::default()));
+        assert_eq!((s.map_generation, s.windows_superseded), (loaded, 1));
+        assert!(
+            s.instances.is_empty(),
+            "the loaded (empty) map's list stays"
+        );
+    }
+
+    #[test]
+    fn answers_render_on_their_own_threads_while_rayons_global_pool_is_busy() {
+        use rayon::prelude::*;
+        use std::sync::atomic::{AtomicBool, Ordering};
+        let release = AtomicBool::new(false);
+        let busy = AtomicBool::new(false);
+        // Held at most this long, so a render queued behind them fails the test, not hangs it.
+        let started = std::time::Instant::now();
+        let held = std::time::Duration::from_secs(3);
+        std::thread::scope(|scope| {
+            // The window worker's HDBSCAN: every global-pool thread held until released.
+            scope.spawn(|| {
+                (0..rayon::current_num_threads() * 4)
+                    .into_par_iter()
+                    .for_each(|_| {
+                        busy.store(true, Ordering::Release);
+                        while !release.load(Ordering::Acquire) && started.elapsed() < held {
+                            std::thread::yield_now();
+                        }
+                    });
+            });
+            while !busy.load(Ordering::Acquire) {
+                std::thread::yield_now();
+            }
+            // An answer's parallel render still runs, on the query pool's threads.
+            let names: Vec<String> = on_query_pool(|| {
+                (0..8)
+                    .into_par_iter()
+                    .map(|_| std::thread::current().name().unwrap_or("").to_owned())
+                    .collect()
+            });
+            release.store(true, Ordering::Release);
+            assert!(
+                started.elapsed() < held,
+                "the render waited for the global pool"
+            );
+            assert!(
+                names.iter().all(|n| n.starts_with("gf-query-")),
+                "{names:?}"
+            );
+        });
     }
 
     fn named(id: &str, best: &str) -> Instance {

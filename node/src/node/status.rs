@@ -169,6 +169,8 @@ pub const WINDOW_BUSY: &str = "window_dropped_busy";
 
 /// The status's reason code for windows that built nothing because no view had valid depth.
 pub const WINDOW_WITHOUT_DEPTH: &str = "window_without_valid_depth";
+/// The status's reason code for windows fused while `load_map` replaced the map.
+pub const WINDOW_SUPERSEDED: &str = "window_superseded_by_load_map";
 
 pub(super) fn publish_status(
     node: &mut Node,
@@ -188,6 +190,12 @@ pub(super) fn publish_status(
             status.rejections.push(RejectCount {
                 reason: WINDOW_WITHOUT_DEPTH.to_owned(),
                 count: s.windows_skipped,
+            });
+        }
+        if s.windows_superseded > 0 {
+            status.rejections.push(RejectCount {
+                reason: WINDOW_SUPERSEDED.to_owned(),
+                count: s.windows_superseded,
             });
         }
         if s.requests_limited > 0 {

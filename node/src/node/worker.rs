@@ -154,16 +154,41 @@ pub(super) fn start_window_worker(
                             frame_id: f.frame_id.clone(),
                         })
                         .collect();
-                    let Ok(mut s) = shared.lock() else { return };
+                    // Fused into a copy without the lock (queries, publishing and services
+                    // go on meanwhile), then swapped in unless the map was replaced meanwhile.
+                    let Ok((mut map, generation, mut boxes, hypotheses)) = shared.lock().map(|s| {
+                        (
+                            s.map.clone(),
+                            s.map_generation,
+                            s.boxes.clone(),
+                            s.hypotheses,
+                        )
+                    }) else {
+                        return;
+                    };
                     let found = output.instances.len();
                     let mut times = output.times;
                     let fused = times.time(Stage::Fusion, || {
-                        models.fuse(&mut s.map, output.instances, &output.views, stamp)
+                        models.fuse(&mut map, output.instances, &output.views, stamp)
                     });
                     match fused {
                         Ok(report) => {
+                            let instances = times.time(Stage::List, || {
+                                super::services::instance_messages_cached(
+                                    &map,
+                                    models.vocabulary.as_ref(),
+                                    hypotheses,
+                                    &mut boxes,
+                                )
+                            });
+                            let Ok(mut s) = shared.lock() else { return };
+                            if !s.install_fused(generation, map, instances, boxes) {
+                                tracing::warn!(
+                                    "window not fused: load_map replaced the map meanwhile"
+                                );
+                                continue;
+                            }
                             s.view_sources = sources;
-                            times.time(Stage::List, || s.refresh_instances());
                             super::services::snapshot_due(&mut s);
                             let millis = times.total().as_millis() as u64;
                             times.0.push((Stage::Window, times.total()));
