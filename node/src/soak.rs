@@ -34,6 +34,7 @@ use crate::config::Config;
 use crate::demo::{call_service, call_service_raw, embedded_node, query_json, wait_for, DemoError};
 use crate::ingest::test_messages::{hostile_message, HostileTarget};
 use crate::ingest::CameraConfig;
+use crate::refer::scripted_chat::{vlm_faults, ScriptedChatServer, FAULT_TIMEOUT_SECS};
 use crate::transport::{Endpoint, Publisher, Transport, ZenohTransport};
 use zenoh::Wait;
 
@@ -81,6 +82,13 @@ pub struct SoakReport {
     pub node_stages_after_flood: BTreeMap<String, [f64; 2]>,
     pub replay_hashes: Vec<String>,
     pub replay_hashes_equal: bool,
+    /// Referring queries sent to a scripted VLM server failing in each way of
+    /// [`vlm_faults`], and those answered by the built-in reasoner with its own answer and the
+    /// fault named in the trace.
+    pub vlm_faults_tried: u64,
+    pub vlm_faults_answered: u64,
+    /// Faults not answered so, with what came back instead.
+    pub vlm_faults_failed: Vec<String>,
 }
 
 /// Resident memory of this process in MB (Linux; 0 elsewhere).
@@ -236,6 +244,56 @@ fn rejections(status: &NodeStatus) -> BTreeMap<String, u64> {
     out
 }
 
+/// Ask a singular expression with `reasoner: vlm` once per fault of the scripted server; each
+/// must come back answered by the built-in reasoner (its own ids) with the fault as the reason.
+fn vlm_faults_phase(
+    report: &mut SoakReport,
+    vlm: &ScriptedChatServer,
+    texts: &[String],
+    ask: &dyn Fn(&str, &str) -> Result<ReferResponse>,
+) {
+    // A singular expression the built-in reasoner answers with one instance among two candidates
+    // or more (the wrong-count fault answers two of them).
+    let singular =
+        |t: &str| crate::refer::parse(t).is_ok_and(|q| q.count == crate::refer::Count::One);
+    let builtin = texts.iter().filter(|t| singular(t)).find_map(|t| {
+        ask(t, "builtin")
+            .ok()
+            .filter(|r| r.instance_ids.len() == 1 && r.candidates.len() >= 2)
+            .map(|r| (t.clone(), r))
+    });
+    let Some((text, builtin)) = builtin else {
+        report
+            .vlm_faults_failed
+            .push("no singular expression with two candidates to ask".into());
+        return;
+    };
+    let two = [
+        builtin.candidates[0].id.as_str(),
+        builtin.candidates[1].id.as_str(),
+    ];
+    for fault in vlm_faults(&builtin.instance_ids[0], two) {
+        vlm.push(fault.reply);
+        report.vlm_faults_tried += 1;
+        match ask(&text, "vlm") {
+            Ok(r)
+                if r.reasoner_used == "fallback"
+                    && r.trace.contains(fault.reason)
+                    && r.instance_ids == builtin.instance_ids =>
+            {
+                report.vlm_faults_answered += 1;
+            }
+            Ok(r) => report.vlm_faults_failed.push(format!(
+                "{}: {} {:?} ({})",
+                fault.name, r.reasoner_used, r.instance_ids, r.trace
+            )),
+            Err(e) => report
+                .vlm_faults_failed
+                .push(format!("{}: no answer ({e})", fault.name)),
+        }
+    }
+}
+
 /// Run the soak; `progress` hears a line per phase.
 pub fn run_soak(options: &SoakOptions, progress: &dyn Fn(&str)) -> Result<SoakReport> {
     let mut report = SoakReport::default();
@@ -249,6 +307,12 @@ pub fn run_soak(options: &SoakOptions, progress: &dyn Fn(&str)) -> Result<SoakRe
     // Bad requests must reach their decoders, not the rate bound (tested on its own).
     config.node.max_requests_per_second = 0.0;
     config.refer.evidence_dir = String::new();
+    // The VLM the faults come from: its port is the node's endpoint from the start.
+    let vlm = ScriptedChatServer::listen()
+        .map_err(|e| DemoError::Protocol(format!("scripted VLM server: {e}")))?;
+    config.refer.vlm.endpoint = vlm.url.clone();
+    config.refer.vlm.model = "scripted".into();
+    config.refer.vlm.timeout_secs = FAULT_TIMEOUT_SECS;
     let (session, node_transport) = embedded_node(&mut config)?;
     let domain = config.zenoh.domain_id;
     let shutdown = Arc::new(AtomicBool::new(false));
@@ -295,13 +359,15 @@ pub fn run_soak(options: &SoakOptions, progress: &dyn Fn(&str)) -> Result<SoakRe
     let mut relations = std::collections::BTreeSet::new();
     expressions.retain(|e| relations.insert(e.relation));
     let texts: Vec<String> = expressions.into_iter().map(|e| e.text).collect();
-    let ask = |text: &str| -> Result<ReferResponse> {
+    // `reasoner` "": the node's default.
+    let ask = |text: &str, reasoner: &str| -> Result<ReferResponse> {
         call_service::<Refer>(
             &session,
             domain,
             &refer_service,
             &ReferRequest {
                 expression: text.to_owned(),
+                reasoner: reasoner.to_owned(),
                 ..ReferRequest::default()
             },
             Duration::from_secs(5),
@@ -310,10 +376,13 @@ pub fn run_soak(options: &SoakOptions, progress: &dyn Fn(&str)) -> Result<SoakRe
     let answers = |texts: &[String]| -> Vec<Vec<String>> {
         texts
             .iter()
-            .map(|t| ask(t).map_or_else(|e| vec![format!("error: {e}")], |r| r.instance_ids))
+            .map(|t| ask(t, "").map_or_else(|e| vec![format!("error: {e}")], |r| r.instance_ids))
             .collect()
     };
     report.referring_before = answers(&texts);
+    progress("VLM faults");
+    vlm_faults_phase(&mut report, &vlm, &texts, &ask);
+    // After the faults: their scripted replies (one of 10 MB) are the soak's own memory.
     report.rss_before_mb = rss_mb();
 
     // 2. Malformed traffic over zenoh.

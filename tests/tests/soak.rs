@@ -1,6 +1,7 @@
 //! `bench soak` at CI size (issue 34): the node with the shipped models and two RGB-D cameras
-//! takes 10⁴ seeded bad messages and 1,000 bad requests over zenoh, then a 10 s flood of both
-//! cameras at 60 Hz with referring queries at 20 Hz, and stays correct. Timings are reported by
+//! answers nine scripted VLM faults with its built-in reasoner, takes 10⁴ seeded bad messages
+//! and 1,000 bad requests over zenoh, then a 10 s flood of both cameras at 60 Hz with referring
+//! queries at 20 Hz, and stays correct. Timings are reported by
 //! `groupforward bench soak`, never asserted here.
 
 use groupforward::soak::{run_soak, SoakOptions};
@@ -53,4 +54,10 @@ fn the_node_counts_hostile_traffic_keeps_its_answers_and_loses_no_query_under_a_
     assert!(r.queries_sent >= 50, "{}", r.queries_sent);
     assert_eq!(r.queries_lost, 0);
     assert!(r.replay_hashes_equal, "{:?}", r.replay_hashes);
+    assert_eq!(r.vlm_faults_tried, 9);
+    assert_eq!(
+        r.vlm_faults_answered, r.vlm_faults_tried,
+        "{:?}",
+        r.vlm_faults_failed
+    );
 }

@@ -10,12 +10,14 @@ use glam::DVec3;
 use groupforward::frame::RgbImage;
 use groupforward::recon::boxes::OrientedBox;
 use groupforward::refer::evidence::Evidence;
+use groupforward::refer::scripted_chat::{
+    vlm_faults, ScriptedChatServer, ScriptedReply, VlmFault, FAULT_TIMEOUT_SECS,
+};
 use groupforward::refer::vlm::{VlmClient, VlmError, VlmSection};
 use groupforward::refer::{
     answer, with_vlm, Answer, Count, Embed, Query, ReferNode, ReferScene, ReferSection, Relation,
     Request,
 };
-use groupforward_tests::{ScriptedChatServer, ScriptedReply};
 
 struct OneHot;
 
@@ -89,7 +91,7 @@ fn evidence() -> Evidence {
 }
 
 fn ask(expression: &str, reply: ScriptedReply, timeout_secs: f64) -> (Answer, ScriptedChatServer) {
-    let server = ScriptedChatServer::start(vec![reply]);
+    let server = ScriptedChatServer::start(vec![reply]).unwrap();
     let section = VlmSection {
         endpoint: server.url.clone(),
         model: "scripted".into(),
@@ -151,70 +153,15 @@ fn markdown_fenced_json_is_accepted() {
 
 #[test]
 fn every_vlm_fault_falls_back_to_the_builtin_answer_and_says_why() {
-    let faults: Vec<(&str, ScriptedReply, &str)> = vec![
-        (
-            "timeout",
-            ScriptedReply {
-                delay: Duration::from_millis(1500),
-                ..ScriptedReply::content(r#"{"ids": ["inst_000002"]}"#)
-            },
-            "did not answer",
-        ),
-        (
-            "HTTP 500",
-            ScriptedReply {
-                status: 500,
-                body: "overloaded".into(),
-                delay: Duration::ZERO,
-                drip_bytes: None,
-            },
-            "HTTP 500",
-        ),
-        (
-            "non-JSON",
-            ScriptedReply::content("the second chair, I think"),
-            "not the expected JSON",
-        ),
-        (
-            "body not JSON",
-            ScriptedReply {
-                status: 200,
-                body: "<html>".into(),
-                delay: Duration::ZERO,
-                drip_bytes: None,
-            },
-            "not the expected JSON",
-        ),
-        (
-            "outside the set",
-            ScriptedReply::content(r#"{"ids": ["inst_000999"]}"#),
-            "not a candidate",
-        ),
-        (
-            "wrong count",
-            ScriptedReply::content(r#"{"ids": ["inst_000001", "inst_000002"]}"#),
-            "asks for",
-        ),
-        ("none", ScriptedReply::content(r#"{"ids": []}"#), "asks for"),
-        (
-            // A valid answer, 16 bytes every 50 ms: the whole request, not each read, is timed.
-            "slow drip",
-            ScriptedReply {
-                delay: Duration::from_millis(50),
-                drip_bytes: Some(16),
-                ..ScriptedReply::content(r#"{"ids": ["inst_000002"]}"#)
-            },
-            "did not answer",
-        ),
-        (
-            // 10 MB of content: refused at the client's body limit (1 MiB), never held whole.
-            "10 MB answer",
-            ScriptedReply::content(&"x".repeat(10 << 20)),
-            "larger than",
-        ),
-    ];
-    for (name, reply, reason) in faults {
-        let (a, _server) = ask("the chair closest to the lamp", reply, 0.5);
+    let faults = vlm_faults("inst_000002", ["inst_000001", "inst_000002"]);
+    assert_eq!(FAULT_TIMEOUT_SECS, 0.5);
+    for VlmFault {
+        name,
+        reply,
+        reason,
+    } in faults
+    {
+        let (a, _server) = ask("the chair closest to the lamp", reply, FAULT_TIMEOUT_SECS);
         assert_eq!(a.reasoner_used, "fallback", "{name}");
         assert!(a.trace.contains(reason), "{name}: {}", a.trace);
         assert_eq!(
@@ -272,7 +219,7 @@ fn cardinality_is_checked_for_plural_expressions() {
 }
 
 fn llm_parse(reply: ScriptedReply) -> (Result<Query, VlmError>, ScriptedChatServer) {
-    let server = ScriptedChatServer::start(vec![reply]);
+    let server = ScriptedChatServer::start(vec![reply]).unwrap();
     let client = VlmClient::new(&VlmSection {
         endpoint: server.url.clone(),
         timeout_secs: 2.0,

@@ -25,6 +25,7 @@ fn describe(r: &SoakReport) -> String {
     format!(
         "malformed: {} messages sent, {} counted ({reasons}); {} bad requests; panics {}\n\
          referring after the malformed traffic: {} ({} expressions)\n\
+         VLM faults: {} of {} answered by the built-in reasoner and flagged{}\n\
          memory: {:.0} MB before, {:.0} MB after the malformed traffic, {:.0} MB peak in the flood, {:.0} MB at the end\n\
          flood: {:.0} s, {} frames from 2 cameras, {} dropped by the input queue (counted)\n\
          queries: {} sent, {} lost, p50 {:.0} ms, p99 {:.0} ms (the handler alone: p50 {:.0}, p99 {:.0} ms)\n\
@@ -35,6 +36,13 @@ fn describe(r: &SoakReport) -> String {
         r.panics,
         if r.referring_same_after_malformed { "same answers" } else { "ANSWERS CHANGED" },
         r.referring_before.len(),
+        r.vlm_faults_answered,
+        r.vlm_faults_tried,
+        if r.vlm_faults_failed.is_empty() {
+            String::new()
+        } else {
+            format!(" (not: {})", r.vlm_faults_failed.join("; "))
+        },
         r.rss_before_mb,
         r.rss_after_malformed_mb,
         r.rss_peak_flood_mb,

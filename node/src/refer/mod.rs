@@ -14,6 +14,7 @@ pub mod reasoner;
 pub mod response;
 pub mod retrieve;
 pub mod scene;
+pub mod scripted_chat;
 #[cfg(test)]
 mod tests;
 pub mod vlm;
