@@ -178,7 +178,8 @@ def main():
     model = SemanticMini()
     device = torch.device(args.device)
     model.to(device)
-    train_text = names_text.to(device), descriptions_text.to(device), weights.to(device)
+    names_on_device, descriptions_on_device, weights_on_device = (
+        names_text.to(device), descriptions_text.to(device), weights.to(device))
     print(f'Semantic-mini: {parameter_count(model) / 1e6:.2f} M parameters; {len(train)} train windows; '
           f'labels {names}; class weights {[round(w, 2) for w in weights.tolist()]}', flush=True)
     loader = torch.utils.data.DataLoader(train, batch_size=args.batch, shuffle=True, drop_last=True)
@@ -208,7 +209,6 @@ def main():
             features = model(images)
             scale = model.logit_scale.exp().clamp(max=100.0)
             size = classes.shape[-2:]
-            names_on_device, descriptions_on_device, weights_on_device = train_text
             name_loss = F.cross_entropy(logits(features, names_on_device, scale, size), classes,
                                         weight=weights_on_device)
             description_loss = F.cross_entropy(logits(features, descriptions_on_device, scale, size), classes,

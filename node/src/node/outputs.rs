@@ -199,14 +199,9 @@ fn publish_loop(
         let now = Instant::now();
         if !stopping && last_publish.is_some_and(|t| now - t < min_interval) {
             // Publishing waits for its rate; the referring snapshot of a changed map does not, so
-            // queries find it taken (see `query_snapshot`).
-            let stale = shared
-                .lock()
-                .is_ok_and(|s| s.refer_scene_generation != s.map_generation);
-            if stale {
-                if let Err(e) = current_snapshot(shared) {
-                    tracing::warn!("cannot take the map's snapshot: {e}");
-                }
+            // queries find it taken (see `query_snapshot`; an unchanged map's costs a lock).
+            if let Err(e) = current_snapshot(shared) {
+                tracing::warn!("cannot take the map's snapshot: {e}");
             }
             continue;
         }

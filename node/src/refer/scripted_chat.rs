@@ -18,10 +18,16 @@ pub struct ScriptedReply {
 impl ScriptedReply {
     /// A 200 chat completions response whose message content is `content`.
     pub fn content(content: &str) -> Self {
-        let body = format!(
-            r#"{{"id":"scripted","object":"chat.completion","choices":[{{"index":0,"message":{{"role":"assistant","content":{}}},"finish_reason":"stop"}}]}}"#,
-            json_string(content)
-        );
+        let body = serde_json::json!({
+            "id": "scripted",
+            "object": "chat.completion",
+            "choices": [{
+                "index": 0,
+                "message": {"role": "assistant", "content": content},
+                "finish_reason": "stop",
+            }],
+        })
+        .to_string();
         Self {
             status: 200,
             body,
@@ -29,20 +35,6 @@ impl ScriptedReply {
             drip_bytes: None,
         }
     }
-}
-
-fn json_string(s: &str) -> String {
-    let mut out = String::from("\"");
-    for c in s.chars() {
-        match c {
-            '"' => out.push_str("\\\""),
-            '\\' => out.push_str("\\\\"),
-            '\n' => out.push_str("\\n"),
-            c => out.push(c),
-        }
-    }
-    out.push('"');
-    out
 }
 
 /// A scripted test server that speaks the OpenAI chat completions protocol over plain HTTP on
