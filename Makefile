@@ -6,7 +6,7 @@ PYTHON ?= python3
 VENV := .venv
 STAMP := $(VENV)/.installed-$(shell sha256sum tests/python/requirements.txt | cut -c1-16)
 
-.PHONY: all setup build demo test test-rust test-python lint bench sweep soak golden clean train-setup train-data train-test
+.PHONY: all setup build demo test test-rust test-python lint bench sweep soak golden clean train-setup train-data train-test ros2-setup ros2 ros2-test
 
 all: test
 
@@ -52,6 +52,27 @@ bench: setup
 # What accuracy costs in time: the settings sweep the README's Pareto chart comes from (~10 min).
 sweep: setup
 	$(CARGO) run -p groupforward -- bench sweep --rounds 2 --out node/doc/bench/sweep
+
+# Native ROS 2 (the `ros2` feature, through r2r): ROS 2 Jazzy from PyPI wheels in $(ROS2_PREFIX)
+# with the message packages the wheels lack built from msgs/ros (launch/ros2/setup.sh), then the
+# node built against it: `launch/ros2/groupforward run --transport ros2` joins the ROS 2 graph.
+# Not part of `make test` (the first run takes ~10 min on 2 cores). It shares target/debug with the
+# default build (no second cold build): `make build` relinks the default binary afterwards.
+ROS2_PREFIX := target/ros2
+ros2-setup:
+	launch/ros2/setup.sh $(ROS2_PREFIX)
+
+ros2 ros2-test: SHELL := /bin/bash
+ros2: ros2-setup
+	source launch/ros2/env.sh $(ROS2_PREFIX) && $(CARGO) build -p groupforward --features ros2
+	mkdir -p $(ROS2_PREFIX)/bin && cp target/debug/groupforward $(ROS2_PREFIX)/bin/groupforward
+
+# The ros2 transport's CDR against rcl's serializers, then an rclpy node (real ROS 2, rmw_fastrtps)
+# plays a sim bag into the native node and checks its services and outputs (tests/ros2).
+ros2-test: ros2
+	source launch/ros2/env.sh $(ROS2_PREFIX) && $(CARGO) test -p groupforward --features ros2 --lib transport::ros2
+	rm -rf $(ROS2_PREFIX)/bag && launch/ros2/groupforward sim record sim/scenes/two_chairs.toml --no-ground-truth --out $(ROS2_PREFIX)/bag
+	source launch/ros2/env.sh $(ROS2_PREFIX) && python tests/ros2/ros2_end_to_end.py --node launch/ros2/groupforward --bag $(ROS2_PREFIX)/bag
 
 # The reliability soak at full size (10^5 bad messages, a 5-minute two-camera flood; ~7 min).
 # CI runs it at a reduced size (tests/tests/soak.rs).

@@ -2,8 +2,11 @@
 
     ros2 launch launch/groupforward.launch.py config:=launch/groupforward.yaml
 
-The node is a plain executable speaking rmw_zenoh's wire format; run it beside a router
+By default the node is a plain executable speaking rmw_zenoh's wire format; run it beside a router
 (`ros2 run rmw_zenoh_cpp rmw_zenohd`) and set RMW_IMPLEMENTATION=rmw_zenoh_cpp for the other nodes.
+A build with the `ros2` feature (`make ros2`) joins the sourced ROS 2 graph natively instead:
+
+    ros2 launch launch/groupforward.launch.py transport:=ros2 binary:=launch/ros2/groupforward
 """
 
 import os
@@ -21,8 +24,11 @@ def generate_launch_description():
                               description='groupforward YAML config'),
         DeclareLaunchArgument('binary', default_value='groupforward',
                               description='path of the groupforward executable'),
+        DeclareLaunchArgument('transport', default_value='zenoh',
+                              description='zenoh (rmw_zenoh wire format) or ros2 (native, rcl)'),
         ExecuteProcess(
-            cmd=[LaunchConfiguration('binary'), 'run', '--config', LaunchConfiguration('config')],
+            cmd=[LaunchConfiguration('binary'), 'run', '--config', LaunchConfiguration('config'),
+                 '--transport', LaunchConfiguration('transport')],
             output='screen',
         ),
     ])

@@ -15,7 +15,7 @@ use crate::graph::persist::MapSection;
 use crate::group::semantics::SemanticsSection;
 use crate::ingest::{CameraConfig, IngestSection, TfSection};
 use crate::model::ModelsSection;
-use crate::transport::ZenohSection;
+use crate::transport::{TransportKind, ZenohSection};
 use crate::window::WindowSection;
 
 pub const DEFAULT_NODE_NAME: &str = "groupforward";
@@ -44,6 +44,7 @@ pub type Result<T> = std::result::Result<T, ConfigError>;
 #[serde(deny_unknown_fields, default)]
 pub struct Config {
     pub node: NodeSection,
+    pub transport: TransportKind,
     pub zenoh: ZenohSection,
     pub cameras: Vec<CameraConfig>,
     pub tf: TfSection,
@@ -61,6 +62,7 @@ impl Default for Config {
     fn default() -> Self {
         Self {
             node: NodeSection::default(),
+            transport: TransportKind::default(),
             zenoh: ZenohSection::default(),
             cameras: vec![CameraConfig::default()],
             tf: TfSection::default(),

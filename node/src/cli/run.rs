@@ -1,11 +1,12 @@
-//! `groupforward run`: the node on a zenoh session until interrupted (or for a set time).
+//! `groupforward run`: the node on its middleware (a zenoh session, or native ROS 2 in a build
+//! with the `ros2` feature) until interrupted (or for a set time).
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 
 use anyhow::{Context, Result};
+use groupforward::node::open_transport;
 use groupforward::record::{Recorder, RecordingTransport};
-use groupforward::transport::{open_session, ZenohTransport};
 
 use crate::zenoh_args::ZenohArgs;
 
@@ -24,13 +25,8 @@ pub struct RunArgs {
 
 pub fn run(args: RunArgs) -> Result<()> {
     let config = args.zenoh.load()?;
-    let session = open_session(&config.zenoh).context("opening the zenoh session")?;
-    let transport = ZenohTransport::new(
-        session,
-        config.zenoh.domain_id,
-        &config.node.namespace,
-        &config.node.name,
-    )?;
+    let transport = open_transport(&config).context("opening the node's transport")?;
+    let transport = transport.as_ref();
     let shutdown = Arc::new(AtomicBool::new(false));
     if let Some(secs) = args.duration_secs {
         let stop = shutdown.clone();
@@ -49,7 +45,7 @@ pub fn run(args: RunArgs) -> Result<()> {
         Some(dir) => {
             let recorder = Recorder::create(dir)?;
             let recording = RecordingTransport {
-                inner: &transport,
+                inner: transport,
                 recorder: recorder.clone(),
             };
             let status = groupforward::node::run(&config, &recording, &shutdown)?;
@@ -57,7 +53,7 @@ pub fn run(args: RunArgs) -> Result<()> {
             tracing::info!("recorded {messages} messages to {}", dir.display());
             status
         }
-        None => groupforward::node::run(&config, &transport, &shutdown)?,
+        None => groupforward::node::run(&config, transport, &shutdown)?,
     };
     println!("{}", serde_json::to_string(&status)?);
     Ok(())

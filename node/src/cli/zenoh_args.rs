@@ -20,6 +20,10 @@ pub struct ZenohArgs {
     /// `zenoh.config_file`.
     #[arg(long)]
     zenoh_config: Option<String>,
+    /// The middleware, replacing the config's `transport`: zenoh, or ros2 (native ROS 2, in a
+    /// build with the `ros2` feature).
+    #[arg(long)]
+    transport: Option<groupforward::transport::TransportKind>,
 }
 
 impl ZenohArgs {
@@ -34,6 +38,9 @@ impl ZenohArgs {
         }
         if !self.listen.is_empty() {
             config.zenoh.listen = self.listen.clone();
+        }
+        if let Some(transport) = self.transport {
+            config.transport = transport;
         }
         if let Some(file) = &self.zenoh_config {
             config.zenoh.config_file = Some(file.clone());

@@ -26,12 +26,40 @@ use groupforward_msgs::gf_msgs::NodeStatus;
 
 use crate::config::Config;
 use crate::graph::persist;
-use crate::transport::Transport;
+use crate::transport::{Transport, TransportKind};
 
 pub use error::{NodeError, Result};
 pub use queue::InputQueue;
 pub use services::{declare, instance_messages, Declared, Shared};
 pub use status::{Node, Step, WINDOW_BUSY};
+
+/// The node's transport as `config` names it: a zenoh session, or (a build with the `ros2`
+/// feature) an rcl node.
+pub fn open_transport(config: &Config) -> crate::transport::Result<Box<dyn Transport>> {
+    let (namespace, name) = (&config.node.namespace, &config.node.name);
+    match config.transport {
+        TransportKind::Zenoh => {
+            let session = crate::transport::open_session(&config.zenoh)?;
+            let transport = crate::transport::ZenohTransport::new(
+                session,
+                config.zenoh.domain_id,
+                namespace,
+                name,
+            )?;
+            Ok(Box::new(transport))
+        }
+        #[cfg(feature = "ros2")]
+        TransportKind::Ros2 => Ok(Box::new(crate::transport::ros2::Ros2Transport::new(
+            namespace, name,
+        )?)),
+        #[cfg(not(feature = "ros2"))]
+        TransportKind::Ros2 => Err(crate::transport::TransportError::Ros2(
+            "the config asks for `transport: ros2`, but this build has no ROS 2 transport: \
+             build with `--features ros2` in a ROS 2 environment (`make ros2`)"
+                .into(),
+        )),
+    }
+}
 
 /// Run the node on `transport` until `shutdown` is set; returns the last status.
 pub fn run(
@@ -242,6 +270,24 @@ mod tests {
             "/groupforward/list_instances",
             &cdr::encode(&ListInstancesRequest::default()).unwrap(),
         )
+    }
+
+    #[cfg(not(feature = "ros2"))]
+    #[test]
+    fn asking_for_ros2_in_a_build_without_it_names_the_feature() {
+        let config = Config {
+            transport: crate::transport::TransportKind::Ros2,
+            ..Config::default()
+        };
+        let error = super::open_transport(&config)
+            .err()
+            .expect("no ROS 2 in this build");
+        assert!(error.to_string().contains("--features ros2"), "{error}");
+        assert_eq!(
+            "ros2".parse::<crate::transport::TransportKind>(),
+            Ok(crate::transport::TransportKind::Ros2)
+        );
+        assert!("dds".parse::<crate::transport::TransportKind>().is_err());
     }
 
     #[test]

@@ -17,8 +17,34 @@ use zenoh::Wait;
 
 use serde::{Deserialize, Serialize};
 
+#[cfg(feature = "ros2")]
+pub mod ros2;
+
 /// ROS_DOMAIN_ID unless configured.
 pub const DEFAULT_DOMAIN_ID: u32 = 0;
+
+/// The middleware the node speaks.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum TransportKind {
+    /// zenoh, wire-compatible with ROS 2's rmw_zenoh, plus the JSON API.
+    #[default]
+    Zenoh,
+    /// Native ROS 2 through rcl (r2r): a build with the `ros2` feature.
+    Ros2,
+}
+
+impl std::str::FromStr for TransportKind {
+    type Err = String;
+
+    fn from_str(s: &str) -> std::result::Result<Self, Self::Err> {
+        match s {
+            "zenoh" => Ok(Self::Zenoh),
+            "ros2" => Ok(Self::Ros2),
+            other => Err(format!("unknown transport `{other}` (zenoh or ros2)")),
+        }
+    }
+}
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "lowercase")]
@@ -73,6 +99,8 @@ pub enum TransportError {
     NoService(String),
     #[error("service `{0}` failed: {1}")]
     Service(String, String),
+    #[error("ROS 2: {0}")]
+    Ros2(String),
 }
 
 pub type Result<T> = std::result::Result<T, TransportError>;
