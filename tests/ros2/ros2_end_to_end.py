@@ -2,10 +2,13 @@
 
 An rclpy node plays a sim bag's frames, camera info, depth and TF into the ROS 2 graph (the bag's
 CDR bytes as they are, at the recorded rate), while `groupforward run` with `transport: ros2`
-maps them. Then, from rclpy with the generated message types: the node's status counts the frames,
-`~/list_instances` lists what it mapped, `~/instances` (vision_msgs/Detection3DArray) and
-`~/markers` arrive and decode, `~/refer` answers a referring expression with one of the listed
-instances, and a request the node refuses is answered with success false and the reason.
+maps them. Then, from rclpy with the generated message types: the ROS graph shows the node, its
+status counts the frames (at most one lost to discovery), `~/list_instances` lists what it mapped,
+`~/instances` (vision_msgs/Detection3DArray) and `~/markers` arrive and decode, `~/get_instance`,
+`~/refer`, `~/save_map` and `~/load_map` answer, and a refused request says success false and why.
+Last, a second node on the zenoh transport restores the saved map and answers every referring
+expression with the same instances (the live map itself depends on which windows a busy worker
+dropped, so two live runs are not compared).
 
 Run by `make ros2-test` (which prepares the environment): python ros2_end_to_end.py --node BIN
 --bag DIR. Exits non-zero with the failed check.
@@ -27,7 +30,7 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 from groupforward_msgs.msg import NodeStatus
-from groupforward_msgs.srv import ListInstances, LoadMap, Refer
+from groupforward_msgs.srv import GetInstance, ListInstances, LoadMap, Refer, SaveMap
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from tf2_msgs.msg import TFMessage
 from vision_msgs.msg import Detection3DArray
@@ -72,11 +75,48 @@ def call(node: Node, client, request, timeout: float = 20.0):
     return future.result()
 
 
+def ask_over_zenoh(binary: str, work: Path, snapshot: Path, expressions) -> dict:
+    """Each expression's answer (sorted ids, or None when refused) from a zenoh node on `snapshot`."""
+    port = 17447 + os.getpid() % 1000
+    endpoint = f"tcp/127.0.0.1:{port}"
+    config = work / "zenoh.yaml"
+    config.write_text(
+        "transport: zenoh\n"
+        f"zenoh:\n  listen: [{endpoint}]\n  connect: []\n"
+        f"map:\n  file: {snapshot}\n  restore_on_start: true\n  save_on_exit: false\n"
+    )
+    log = open(work / "zenoh_node.log", "w")
+    node = subprocess.Popen([binary, "run", "--config", str(config), "--duration-secs", "120"],
+                            stdout=log, stderr=subprocess.STDOUT)
+    try:
+        answers = {}
+        for expression in expressions:
+            query = [binary, "query", expression, "--connect", endpoint, "--reasoner", "builtin"]
+            for _ in range(20):  # the node may still be starting
+                done = subprocess.run(query, capture_output=True, text=True, timeout=60)
+                answered = done.returncode == 0
+                refused = done.returncode == 1 and "no answer" in done.stdout
+                if answered or refused:
+                    break
+                time.sleep(0.5)
+            assert answered or refused, f"query '{expression}' failed: {done.stderr}"
+            ids = [line.split()[0] for line in done.stdout.splitlines() if line.startswith("  inst_")]
+            answers[expression] = sorted(ids) if answered else None
+        return answers
+    finally:
+        node.terminate()
+        node.wait(timeout=20)
+
+
 def main() -> int:
     parser = argparse.ArgumentParser()
     parser.add_argument("--node", required=True, help="groupforward binary built with --features ros2")
     parser.add_argument("--bag", required=True, type=Path)
-    parser.add_argument("--expression", default="the trash bin")
+    parser.add_argument(
+        "--expressions",
+        nargs="+",
+        default=["the trash bin", "the table", "both chairs", "the chair closest to the trash bin"],
+    )
     parser.add_argument("--rate", type=float, default=1.0)
     parser.add_argument("--extra-config", default="", help="YAML appended to the node's config")
     args = parser.parse_args()
@@ -84,6 +124,7 @@ def main() -> int:
     messages = read_bag(args.bag)
     assert messages, f"no camera messages in {args.bag}"
     work = Path(tempfile.mkdtemp(prefix="gf-ros2-"))
+    (work / "maps").mkdir()
     config = work / "node.yaml"
     config.write_text(
         "transport: ros2\n"
@@ -180,21 +221,50 @@ def run_checks(args, player: Node, messages, node_process, work: Path) -> int:
     print(f"{len(instances)} instances listed: "
           + ", ".join(sorted(f"{i.id} {label(i)}" for i in instances)))
 
+    names = player.get_node_names_and_namespaces()
+    assert ("groupforward", "/") in names, f"the ROS graph does not show the node: {names}"
+
+    get_client = player.create_client(GetInstance, "/groupforward/get_instance")
+    first = sorted(ids)[0]
+    got = call(player, get_client, GetInstance.Request(id=first))
+    assert got.found and got.instance.id == first, f"get_instance {first}: {got}"
+
     refer_client = player.create_client(Refer, "/groupforward/refer")
-    request = Refer.Request(expression=args.expression, reasoner="builtin")
-    answer = call(player, refer_client, request)
-    assert answer.success, f"refer failed: {answer.message}"
-    assert answer.instance_ids, "refer selected nothing"
-    assert set(answer.instance_ids) <= ids, "refer selected an instance the map does not list"
-    assert len(answer.boxes) == len(answer.instance_ids)
-    print(f"refer '{args.expression}': {list(answer.instance_ids)} "
-          f"({answer.reasoner_used}, confidence {list(round(c, 2) for c in answer.confidences)})")
+    ros_answers = {}
+    for expression in args.expressions:
+        answer = call(player, refer_client, Refer.Request(expression=expression, reasoner="builtin"))
+        if answer.success:
+            assert set(answer.instance_ids) <= ids, f"refer '{expression}' names an unlisted instance"
+            assert len(answer.boxes) == len(answer.instance_ids) == len(answer.confidences)
+        ros_answers[expression] = sorted(answer.instance_ids) if answer.success else None
+        print(f"refer '{expression}': {ros_answers[expression] or 'refused: ' + answer.message} "
+              f"({answer.reasoner_used})")
+    assert ros_answers[args.expressions[0]], f"refer '{args.expressions[0]}' found nothing"
+
+    # Save, then load the snapshot back: the same instances.
+    save_client = player.create_client(SaveMap, "/groupforward/save_map")
+    saved = call(player, save_client, SaveMap.Request(path="ros2.gfmap"))
+    assert saved.success, f"save_map: {saved.message}"
+    load_client = player.create_client(LoadMap, "/groupforward/load_map")
+    loaded = call(player, load_client, LoadMap.Request(path="ros2.gfmap"))
+    assert loaded.success, f"load_map: {loaded.message}"
+    again = {i.id for i in call(player, list_client, ListInstances.Request()).instances}
+    assert again == ids, f"load_map gave {sorted(again)}, saved {sorted(ids)}"
+    print(f"save_map / load_map: {len(again)} instances back")
 
     # A refused request: success false with the node's reason (ROS 2 services have no error reply).
-    load_client = player.create_client(LoadMap, "/groupforward/load_map")
     refused = call(player, load_client, LoadMap.Request(path="../../etc/passwd"))
     assert not refused.success and refused.message, "load_map outside the map directory was not refused"
     print(f"load_map '../../etc/passwd': refused ({refused.message})")
+
+    # The zenoh transport answers the same on the same map: a second node restores the snapshot.
+    zenoh_answers = ask_over_zenoh(args.node, work, work / "maps" / "ros2.gfmap", args.expressions)
+    for expression in args.expressions:
+        assert zenoh_answers[expression] == ros_answers[expression], (
+            f"'{expression}': ROS 2 answered {ros_answers[expression]}, "
+            f"zenoh {zenoh_answers[expression]}"
+        )
+    print(f"zenoh transport on the saved map: the same {len(args.expressions)} answers")
     print("ros2 end to end: OK")
     return 0
 

@@ -32,6 +32,12 @@ pub struct QueryArgs {
 
 pub fn run(args: QueryArgs) -> Result<()> {
     let config = args.zenoh.load()?;
+    if config.transport == groupforward::transport::TransportKind::Ros2 {
+        anyhow::bail!(
+            "`query` asks over zenoh; on ROS 2 call the service: ros2 service call \
+             /groupforward/refer groupforward_msgs/srv/Refer \"{{expression: 'the trash bin'}}\""
+        );
+    }
     let session = open_session(&config.zenoh).context("opening the zenoh session")?;
     let service = resolve_name(&config.node.namespace, &config.node.name, "~/refer")?;
     let request = ReferRequest {

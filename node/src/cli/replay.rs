@@ -1,10 +1,11 @@
-//! `groupforward replay`: publish a rosbag2 MCAP bag over zenoh as a live robot would.
+//! `groupforward replay`: publish a rosbag2 MCAP bag as a live robot would, over zenoh or (a build
+//! with the `ros2` feature, `--transport ros2`) into the ROS 2 graph.
 
 use std::path::PathBuf;
 
 use anyhow::{Context, Result};
+use groupforward::node::open_transport;
 use groupforward::replay::{replay, ReplayOptions};
-use groupforward::transport::{open_session, ZenohTransport};
 
 use crate::zenoh_args::ZenohArgs;
 
@@ -25,17 +26,17 @@ pub struct ReplayArgs {
 }
 
 pub fn run(args: ReplayArgs) -> Result<()> {
-    let config = args.zenoh.load()?;
-    let session = open_session(&config.zenoh).context("opening the zenoh session")?;
-    let transport =
-        ZenohTransport::new(session, config.zenoh.domain_id, "/", "groupforward_replay")?;
+    let mut config = args.zenoh.load()?;
+    config.node.namespace = "/".into();
+    config.node.name = "groupforward_replay".into();
+    let transport = open_transport(&config).context("opening the transport")?;
     std::thread::sleep(std::time::Duration::from_secs_f64(args.delay_secs.max(0.0)));
     let options = ReplayOptions {
         rate: args.rate,
         loops: if args.repeat { 0 } else { 1 },
         progress: true,
     };
-    let summary = replay(&args.bag, &transport, options)
+    let summary = replay(&args.bag, transport.as_ref(), options)
         .with_context(|| format!("replaying {}", args.bag.display()))?;
     eprintln!(
         "replayed {} messages in {:.2} s",
