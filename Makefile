@@ -69,7 +69,7 @@ ros2: ros2-setup
 
 # The ros2 transport's CDR against rcl's serializers, then an rclpy node (real ROS 2, rmw_fastrtps)
 # plays a sim bag into the native node and checks its services and outputs (tests/ros2).
-ros2-test: ros2
+ros2-test: setup ros2
 	source launch/ros2/env.sh $(ROS2_PREFIX) && $(CARGO) test -p groupforward --features ros2 --lib transport::ros2
 	rm -rf $(ROS2_PREFIX)/bag && launch/ros2/groupforward sim record sim/scenes/two_chairs.toml --no-ground-truth --out $(ROS2_PREFIX)/bag
 	source launch/ros2/env.sh $(ROS2_PREFIX) && python tests/ros2/ros2_end_to_end.py --node launch/ros2/groupforward --bag $(ROS2_PREFIX)/bag
