@@ -2,7 +2,9 @@
 //! config (`launch/zenoh_access_control.json5`), on loopback: a trusted user calls the services,
 //! saves the map and reads the status; a user who logs in but whom no policy names cannot call
 //! `save_map` / `load_map`, query the JSON API or read anything the node publishes; a session
-//! without valid credentials does not get in at all.
+//! without valid credentials does not get in at all. And over mutual TLS (`launch/zenoh_tls.json5`
+//! with the test certificates of `tests/tls`): only a client whose certificate the node's CA
+//! signed gets a session.
 
 #![allow(clippy::unwrap_used)] // test helpers outside #[test] functions unwrap too
 
@@ -175,6 +177,122 @@ fn only_trusted_users_reach_the_node_s_services_and_map() {
 
     // The trusted user is still served after all that.
     assert!(save(&operator, "again.gfmap").unwrap().success);
+    shutdown.store(true, Ordering::Relaxed);
+    node.join().unwrap().unwrap();
+}
+
+/// The test certificates of `tests/tls` (make_certs.sh; their keys are public: tests only).
+fn tls_file(name: &str) -> String {
+    Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/tls"))
+        .join(name)
+        .display()
+        .to_string()
+}
+
+/// The shipped TLS example with the test certificates in place of its paths.
+fn tls_example_config(dir: &Path) -> PathBuf {
+    let launch = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../launch"));
+    let example = std::fs::read_to_string(launch.join("zenoh_tls.json5")).unwrap();
+    let moved = example.replace("/etc/groupforward/tls/", &format!("{}/", tls_file("")));
+    assert_ne!(moved, example, "the example names its certificate files");
+    let path = dir.join("zenoh_tls.json5");
+    std::fs::write(&path, moved).unwrap();
+    path
+}
+
+/// A client session over TLS to `endpoint`, presenting `certificate` (`<name>.pem` and
+/// `<name>.key` of tests/tls) when given.
+fn tls_client(endpoint: &str, certificate: Option<&str>) -> zenoh::Result<zenoh::Session> {
+    let mut config = zenoh::Config::default();
+    config.insert_json5("mode", r#""client""#)?;
+    config.insert_json5("connect/endpoints", &format!(r#"["{endpoint}"]"#))?;
+    config.insert_json5("scouting/multicast/enabled", "false")?;
+    let tls = "transport/link/tls";
+    config.insert_json5(
+        &format!("{tls}/root_ca_certificate"),
+        &format!(r#""{}""#, tls_file("ca.pem")),
+    )?;
+    if let Some(name) = certificate {
+        config.insert_json5(&format!("{tls}/enable_mtls"), "true")?;
+        config.insert_json5(
+            &format!("{tls}/connect_certificate"),
+            &format!(r#""{}""#, tls_file(&format!("{name}.pem"))),
+        )?;
+        config.insert_json5(
+            &format!("{tls}/connect_private_key"),
+            &format!(r#""{}""#, tls_file(&format!("{name}.key"))),
+        )?;
+    }
+    zenoh::open(config).wait()
+}
+
+#[test]
+fn over_mutual_tls_only_clients_with_the_ca_s_certificate_get_a_session() {
+    let dir = tempfile::tempdir().unwrap();
+    let port = free_port();
+    let endpoint = format!("tls/127.0.0.1:{port}");
+    let mut config = Config::default();
+    config.status.period_secs = 0.1;
+    config.zenoh = ZenohSection {
+        mode: ZenohMode::Peer,
+        listen: vec![endpoint.clone()],
+        connect: Vec::new(),
+        multicast_scouting: false,
+        config_file: Some(tls_example_config(dir.path()).display().to_string()),
+        ..ZenohSection::default()
+    };
+    let node_session = open_session(&config.zenoh).unwrap();
+    let transport = ZenohTransport::new(node_session, 0, "/", "groupforward").unwrap();
+    let shutdown = Arc::new(AtomicBool::new(false));
+    let node = {
+        let (config, shutdown) = (config.clone(), shutdown.clone());
+        std::thread::spawn(move || groupforward::node::run(&config, &transport, &shutdown))
+    };
+    let status_key = format!("{}/status", config.api_prefix());
+    let list = |session: &zenoh::Session| {
+        call_service::<ListInstances>(
+            session,
+            0,
+            &rmw_zenoh::resolve_name("/", "groupforward", "~/list_instances").unwrap(),
+            &ListInstancesRequest::default(),
+            TIMEOUT,
+        )
+    };
+
+    // A client with a certificate the node's CA signed: the JSON API, a service, the status.
+    let operator = tls_client(&endpoint, Some("client")).unwrap();
+    wait_for(
+        "the node to answer over TLS",
+        Duration::from_secs(10),
+        || query_json(&operator, &status_key, Duration::from_millis(300)).ok(),
+    )
+    .unwrap();
+    list(&operator).unwrap();
+    assert!(samples_seen(&operator, Duration::from_millis(600)) > 0);
+
+    // Another CA's certificate, no certificate, or no TLS at all: no session reaches the node.
+    let refused: [(&str, zenoh::Result<zenoh::Session>); 3] = [
+        ("an untrusted CA", tls_client(&endpoint, Some("intruder"))),
+        ("no certificate", tls_client(&endpoint, None)),
+        ("plain tcp", client(&format!("tcp/127.0.0.1:{port}"), None)),
+    ];
+    for (who, session) in refused {
+        if let Ok(session) = session {
+            assert!(
+                query_json(&session, &status_key, TIMEOUT).is_err(),
+                "{who} queried the JSON API"
+            );
+            assert!(list(&session).is_err(), "{who} called list_instances");
+            assert_eq!(
+                samples_seen(&session, Duration::from_millis(300)),
+                0,
+                "{who} read"
+            );
+        }
+    }
+
+    // The trusted client is still served.
+    list(&operator).unwrap();
     shutdown.store(true, Ordering::Relaxed);
     node.join().unwrap().unwrap();
 }
