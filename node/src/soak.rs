@@ -34,7 +34,9 @@ use crate::config::Config;
 use crate::demo::{call_service, call_service_raw, embedded_node, query_json, wait_for, DemoError};
 use crate::ingest::test_messages::{hostile_message, HostileTarget};
 use crate::ingest::CameraConfig;
-use crate::refer::scripted_chat::{vlm_faults, ScriptedChatServer, FAULT_TIMEOUT_SECS};
+use crate::refer::scripted_chat::{
+    vlm_faults, ScriptedChatServer, FAULT_TIMEOUT_SECS, REFUSED_REASON,
+};
 use crate::transport::{Endpoint, Publisher, Transport, ZenohTransport};
 use zenoh::Wait;
 
@@ -83,8 +85,8 @@ pub struct SoakReport {
     pub replay_hashes: Vec<String>,
     pub replay_hashes_equal: bool,
     /// Referring queries sent to a scripted VLM server failing in each way of
-    /// [`vlm_faults`], and those answered by the built-in reasoner with its own answer and the
-    /// fault named in the trace.
+    /// [`vlm_faults`], then once more after it closed its port (connection refused), and those
+    /// answered by the built-in reasoner with its own answer and the fault named in the trace.
     pub vlm_faults_tried: u64,
     pub vlm_faults_answered: u64,
     /// Faults not answered so, with what came back instead.
@@ -272,26 +274,32 @@ fn vlm_faults_phase(
         builtin.candidates[0].id.as_str(),
         builtin.candidates[1].id.as_str(),
     ];
-    for fault in vlm_faults(&builtin.instance_ids[0], two) {
-        vlm.push(fault.reply);
+    let mut try_fault = |name: &str, reason: &str| {
         report.vlm_faults_tried += 1;
         match ask(&text, "vlm") {
             Ok(r)
                 if r.reasoner_used == "fallback"
-                    && r.trace.contains(fault.reason)
+                    && r.trace.contains(reason)
                     && r.instance_ids == builtin.instance_ids =>
             {
                 report.vlm_faults_answered += 1;
             }
             Ok(r) => report.vlm_faults_failed.push(format!(
-                "{}: {} {:?} ({})",
-                fault.name, r.reasoner_used, r.instance_ids, r.trace
+                "{name}: {} {:?} ({})",
+                r.reasoner_used, r.instance_ids, r.trace
             )),
             Err(e) => report
                 .vlm_faults_failed
-                .push(format!("{}: no answer ({e})", fault.name)),
+                .push(format!("{name}: no answer ({e})")),
         }
+    };
+    for fault in vlm_faults(&builtin.instance_ids[0], two) {
+        vlm.push(fault.reply);
+        try_fault(fault.name, fault.reason);
     }
+    // Last, the server goes away: the connection is refused.
+    vlm.close();
+    try_fault("connection refused", REFUSED_REASON);
 }
 
 /// Run the soak; `progress` hears a line per phase.

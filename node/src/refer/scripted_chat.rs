@@ -46,6 +46,8 @@ pub struct ScriptedChatServer {
     pub url: String,
     pub requests: std::sync::Arc<std::sync::Mutex<Vec<(String, String)>>>,
     replies: std::sync::mpsc::SyncSender<ScriptedReply>,
+    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    accepting: std::sync::Mutex<Option<std::thread::JoinHandle<()>>>,
 }
 
 impl ScriptedChatServer {
@@ -68,14 +70,29 @@ impl ScriptedChatServer {
     /// Listen on a free loopback port; connections wait for replies [`Self::push`]ed later.
     pub fn listen() -> std::io::Result<Self> {
         use std::io::{BufRead, BufReader, Read};
+        use std::sync::atomic::{AtomicBool, Ordering};
         let listener = std::net::TcpListener::bind("127.0.0.1:0")?;
         let port = listener.local_addr()?.port();
+        // Polled, so that `close` can stop accepting and close the port.
+        listener.set_nonblocking(true)?;
         let requests = std::sync::Arc::new(std::sync::Mutex::new(Vec::new()));
         let recorded = requests.clone();
         let (replies, scripted) = std::sync::mpsc::sync_channel::<ScriptedReply>(REPLIES_QUEUED);
-        std::thread::spawn(move || {
-            for stream in listener.incoming() {
-                let Ok(stream) = stream else { return };
+        let stop = std::sync::Arc::new(AtomicBool::new(false));
+        let stopped = stop.clone();
+        let accepting = std::thread::spawn(move || {
+            while !stopped.load(Ordering::Relaxed) {
+                let stream = match listener.accept() {
+                    Ok((stream, _)) => stream,
+                    Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {
+                        std::thread::sleep(Duration::from_millis(2));
+                        continue;
+                    }
+                    Err(_) => return,
+                };
+                if stream.set_nonblocking(false).is_err() {
+                    continue;
+                }
                 let Ok(reply) = scripted.recv() else { return };
                 let Ok(read_half) = stream.try_clone() else {
                     continue;
@@ -111,7 +128,25 @@ impl ScriptedChatServer {
             url: format!("http://127.0.0.1:{port}/v1"),
             requests,
             replies,
+            stop,
+            accepting: std::sync::Mutex::new(Some(accepting)),
         })
+    }
+
+    /// Stop accepting and close the port: a client's next connection is refused (the server
+    /// that went away). Replies already being written still finish.
+    pub fn close(&self) {
+        self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        let handle = self.accepting.lock().ok().and_then(|mut h| h.take());
+        if let Some(handle) = handle {
+            let _ = handle.join();
+        }
+    }
+}
+
+impl Drop for ScriptedChatServer {
+    fn drop(&mut self) {
+        self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
     }
 }
 
@@ -157,6 +192,10 @@ pub struct VlmFault {
     pub reply: ScriptedReply,
     pub reason: &'static str,
 }
+
+/// After the scripted faults, the server closes its port ([`ScriptedChatServer::close`]): this is
+/// what the fallback's trace must give for the refused connection.
+pub const REFUSED_REASON: &str = "request failed";
 
 /// Every scripted fault (a client with [`FAULT_TIMEOUT_SECS`]): each must be answered by the
 /// built-in reasoner and flagged. `candidate` is a valid id, `two` a pair of them.
