@@ -11,6 +11,7 @@ use rustc_hash::FxHashMap;
 use super::error::GraphError;
 use super::instance::{bounds, capped, cosine, FusionParams, Instance};
 use crate::frame::{Keyframe, WindowInstance, WindowView};
+use crate::recon::boxes::OrientedBox;
 use crate::recon::gaussians::Gaussians;
 
 /// What one fusion step did.
@@ -119,13 +120,30 @@ impl Footprint {
     }
 }
 
-/// Instances' point footprints, built on first use.
+/// Instances' point footprints, built on first use, and bounds that hold each instance's points
+/// (an instance that absorbed another holds the union of both bounds).
 struct Footprints {
     voxel: f32,
     built: Vec<Option<Footprint>>,
+    bounds: Vec<(Vec3, Vec3)>,
 }
 
 impl Footprints {
+    /// Whether instances `a` and `b` lie so far apart that neither their footprints overlap nor
+    /// boxes fitted to their points (as they were when `bounds` were taken) intersect. A box
+    /// fitted at any yaw to points within bounds of diagonal d lies within 1.75 d of the bounds'
+    /// centre, and a union's centre within half its diagonal of a part's (2.25 d). A footprint's
+    /// spacing is at most its bounds' diagonal (or the voxel), so footprints farther apart than
+    /// 1.5 × that (per axis, √3 × that in distance) overlap 0.
+    fn far_apart(&self, a: usize, b: usize) -> bool {
+        let ((lo_a, hi_a), (lo_b, hi_b)) = (self.bounds[a], self.bounds[b]);
+        let (d_a, d_b) = ((hi_a - lo_a).length(), (hi_b - lo_b).length());
+        let boxes = 2.25 * (d_a + d_b);
+        let footprints = 0.5 * (d_a + d_b) + 2.6 * d_a.max(d_b).max(self.voxel);
+        let distance = ((lo_a + hi_a) / 2.0).distance((lo_b + hi_b) / 2.0);
+        distance > 1.01 * boxes.max(footprints) + 1e-3
+    }
+
     /// The share of the smaller of instances `a` and `b` lying on the other (see
     /// [`Footprint::overlap`]), their footprints built if they are not yet.
     fn overlap(&mut self, instances: &[Instance], a: usize, b: usize) -> f32 {
@@ -265,11 +283,15 @@ impl SceneMap {
             .iter()
             .map(|w| Footprint::new(&w.gaussians, p.voxel))
             .collect();
-        let map_footprints: Vec<Footprint> = self
+        // A persistent instance's footprint is built only when some window instance comes near
+        // it: at 500 instances, building them all was most of a window's fusion.
+        let map_bounds: Vec<(Vec3, Vec3)> = self
             .instances
             .iter()
-            .map(|m| Footprint::new(&m.gaussians, p.voxel))
+            .map(|m| bounds(&m.gaussians))
             .collect();
+        let mut map_footprints: Vec<Option<Footprint>> =
+            (0..self.instances.len()).map(|_| None).collect();
         // One to one first (Kuhn–Munkres): each persistent instance goes to the window instance
         // that scores best with it, so two window objects never both become one map object.
         let rows = window.len();
@@ -281,7 +303,17 @@ impl SceneMap {
         let scale = 1_000_000.0f32;
         let mut weights = Matrix::new(rows, n + rows, 0i64);
         for (i, wf) in window_footprints.iter().enumerate() {
-            for (j, mf) in map_footprints.iter().enumerate() {
+            for j in 0..n {
+                // A footprint's spacing is at most its bounds' diagonal (or the voxel), so
+                // bounds farther apart than 1.5 × that overlap 0 whatever the footprint: the
+                // gate below would drop the pair (1% margin against rounding).
+                let (lo, hi) = map_bounds[j];
+                let reach = 1.515 * wf.spacing.max((hi - lo).length()).max(p.voxel);
+                if p.min_overlap > 0.0 && wf.apart(lo, hi, reach) {
+                    continue;
+                }
+                let mf = map_footprints[j]
+                    .get_or_insert_with(|| Footprint::new(&self.instances[j].gaussians, p.voxel));
                 let radius = 1.5 * wf.spacing.max(mf.spacing);
                 let overlap = wf.overlap(mf, radius);
                 // Without semantics (no semantic model yet), geometry alone decides.
@@ -319,9 +351,10 @@ impl SceneMap {
             let wf = &window_footprints[i];
             pairs[i] = gated[i]
                 .iter()
-                .map(|&j| {
-                    let mf = &map_footprints[j];
-                    (j, wf.covered_by(mf, 1.5 * wf.spacing.max(mf.spacing)))
+                .filter_map(|&j| {
+                    // Built: gated pairs passed the geometry gate above.
+                    let mf = map_footprints[j].as_ref()?;
+                    Some((j, wf.covered_by(mf, 1.5 * wf.spacing.max(mf.spacing))))
                 })
                 .filter(|&(_, covered)| covered >= PART_COVERED)
                 .max_by(|a, b| a.1.total_cmp(&b.1))
@@ -526,6 +559,11 @@ impl SceneMap {
         let mut footprints = Footprints {
             voxel: p.voxel,
             built: (0..n).map(|_| None).collect(),
+            bounds: self
+                .instances
+                .iter()
+                .map(|i| bounds(&i.gaussians))
+                .collect(),
         };
         let mut order: Vec<usize> = (0..n).collect();
         order.sort_by_key(|&i| {
@@ -546,6 +584,8 @@ impl SceneMap {
                     let absorbed = self.instances[b].clone();
                     self.instances[a].absorb(&absorbed, p);
                     footprints.built[a] = None;
+                    let ((lo_a, hi_a), (lo_b, hi_b)) = (footprints.bounds[a], footprints.bounds[b]);
+                    footprints.bounds[a] = (lo_a.min(lo_b), hi_a.max(hi_b));
                     keep[b] = false;
                     folded.push((absorbed.id, self.instances[a].id.clone()));
                 }
@@ -563,17 +603,94 @@ impl SceneMap {
         same_kind: &dyn Fn(&[f32], &[f32]) -> bool,
     ) -> Vec<(String, String)> {
         let p = self.params;
-        let boxes: Vec<_> = self.instances.iter().map(|i| i.oriented_box()).collect();
+        // Boxes as the instances were before any fold, fitted only for pairs near enough to
+        // matter (at 500 instances, fitting every box was most of a window's fusion). A pair
+        // that folds asks for both boxes first, so the survivor's box is the one it had before.
+        let mut boxes: Vec<Option<OrientedBox>> = (0..self.instances.len()).map(|_| None).collect();
         self.fold_pairs(keep, |instances, footprints, a, b| {
             let (pa, pb) = (&instances[a].prototype, &instances[b].prototype);
             let similar = !pa.is_empty()
                 && !pb.is_empty()
                 && cosine(pa, pb) >= p.duplicate_similarity
                 && same_kind(pa, pb);
+            if !similar || (p.duplicate_iou > 0.0 && footprints.far_apart(a, b)) {
+                return false;
+            }
+            let box_a = *boxes[a].get_or_insert_with(|| instances[a].oriented_box());
+            let box_b = *boxes[b].get_or_insert_with(|| instances[b].oriented_box());
             // Point footprints only where boxes alone do not decide.
-            similar
-                && (boxes[a].iou(&boxes[b]) >= p.duplicate_iou
-                    || footprints.overlap(instances, a, b) >= 0.5)
+            box_a.iou(&box_b) >= p.duplicate_iou || footprints.overlap(instances, a, b) >= 0.5
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::Quat;
+    use rand::{Rng, SeedableRng};
+
+    /// Points along a random segment with a little spread: thin diagonal sets are where a fitted
+    /// box pokes out of the points' axis-aligned bounds the most.
+    fn rod(rng: &mut rand_chacha::ChaCha8Rng, centre: Vec3) -> Gaussians {
+        let mut g = Gaussians::with_dims(0, 0);
+        let half = Vec3::new(
+            rng.random_range(-1.0..1.0),
+            rng.random_range(-1.0..1.0),
+            0.0,
+        ) * rng.random_range(0.05..1.5);
+        for k in 0..60 {
+            let t = k as f32 / 59.0 * 2.0 - 1.0;
+            let jitter = Vec3::new(
+                rng.random_range(-0.02..0.02),
+                rng.random_range(-0.02..0.02),
+                rng.random_range(0.0..0.3),
+            );
+            let p = centre + half * t + jitter;
+            g.push(
+                p,
+                0.9,
+                Vec3::splat(0.01),
+                Quat::IDENTITY,
+                Vec3::splat(0.5),
+                &[],
+                &[],
+            );
+        }
+        g
+    }
+
+    #[test]
+    fn pairs_judged_far_apart_never_have_intersecting_boxes_or_touching_footprints() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        let (mut pruned, mut trials) = (0, 0);
+        for _ in 0..400 {
+            let offset = Vec3::new(
+                rng.random_range(-4.0..4.0),
+                rng.random_range(-4.0..4.0),
+                0.0,
+            );
+            let (a, b) = (rod(&mut rng, Vec3::ZERO), rod(&mut rng, offset));
+            let footprints = Footprints {
+                voxel: 0.05,
+                built: vec![None, None],
+                bounds: vec![bounds(&a), bounds(&b)],
+            };
+            if !footprints.far_apart(0, 1) {
+                continue;
+            }
+            pruned += 1;
+            let (box_a, box_b) = (
+                OrientedBox::fit(&a.means, crate::recon::boxes::DEFAULT_TRIM),
+                OrientedBox::fit(&b.means, crate::recon::boxes::DEFAULT_TRIM),
+            );
+            assert_eq!(box_a.iou(&box_b), 0.0, "boxes of a far pair intersect");
+            let (fa, fb) = (Footprint::new(&a, 0.05), Footprint::new(&b, 0.05));
+            assert_eq!(fa.overlap(&fb, 1.5 * fa.spacing.max(fb.spacing)), 0.0);
+            trials += 1;
+        }
+        // The check must have pruned something, and not everything.
+        assert!(pruned > 50 && pruned < 400, "{pruned} of 400 pruned");
+        assert_eq!(trials, pruned);
     }
 }
