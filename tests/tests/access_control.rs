@@ -79,21 +79,26 @@ fn samples_seen(session: &zenoh::Session, window: Duration) -> usize {
     seen.load(Ordering::Relaxed)
 }
 
-#[test]
-fn only_trusted_users_reach_the_node_s_services_and_map() {
-    let dir = tempfile::tempdir().unwrap();
-    let maps = dir.path().join("maps");
-    std::fs::create_dir_all(&maps).unwrap();
-    let endpoint = format!("tcp/127.0.0.1:{}", free_port());
+/// The node on a zenoh peer listening on `endpoint` with the zenoh config file `zenoh_config`,
+/// confined to `maps` when given; returns its config, the stop flag and its thread.
+fn spawn_node(
+    endpoint: &str,
+    zenoh_config: &Path,
+    maps: Option<&Path>,
+) -> (
+    Config,
+    Arc<AtomicBool>,
+    std::thread::JoinHandle<groupforward::node::Result<groupforward_msgs::gf_msgs::NodeStatus>>,
+) {
     let mut config = Config::default();
     config.status.period_secs = 0.1;
-    config.map.directory = Some(maps.display().to_string());
+    config.map.directory = maps.map(|m| m.display().to_string());
     config.zenoh = ZenohSection {
         mode: ZenohMode::Peer,
-        listen: vec![endpoint.clone()],
+        listen: vec![endpoint.to_owned()],
         connect: Vec::new(),
         multicast_scouting: false,
-        config_file: Some(example_config(dir.path()).display().to_string()),
+        config_file: Some(zenoh_config.display().to_string()),
         ..ZenohSection::default()
     };
     let node_session = open_session(&config.zenoh).unwrap();
@@ -103,6 +108,16 @@ fn only_trusted_users_reach_the_node_s_services_and_map() {
         let (config, shutdown) = (config.clone(), shutdown.clone());
         std::thread::spawn(move || groupforward::node::run(&config, &transport, &shutdown))
     };
+    (config, shutdown, node)
+}
+
+#[test]
+fn only_trusted_users_reach_the_node_s_services_and_map() {
+    let dir = tempfile::tempdir().unwrap();
+    let maps = dir.path().join("maps");
+    std::fs::create_dir_all(&maps).unwrap();
+    let endpoint = format!("tcp/127.0.0.1:{}", free_port());
+    let (config, shutdown, node) = spawn_node(&endpoint, &example_config(dir.path()), Some(&maps));
     let status_key = format!("{}/status", config.api_prefix());
     let service = |name: &str| {
         rmw_zenoh::resolve_name(&config.node.namespace, &config.node.name, name).unwrap()
@@ -231,23 +246,7 @@ fn over_mutual_tls_only_clients_with_the_ca_s_certificate_get_a_session() {
     let dir = tempfile::tempdir().unwrap();
     let port = free_port();
     let endpoint = format!("tls/127.0.0.1:{port}");
-    let mut config = Config::default();
-    config.status.period_secs = 0.1;
-    config.zenoh = ZenohSection {
-        mode: ZenohMode::Peer,
-        listen: vec![endpoint.clone()],
-        connect: Vec::new(),
-        multicast_scouting: false,
-        config_file: Some(tls_example_config(dir.path()).display().to_string()),
-        ..ZenohSection::default()
-    };
-    let node_session = open_session(&config.zenoh).unwrap();
-    let transport = ZenohTransport::new(node_session, 0, "/", "groupforward").unwrap();
-    let shutdown = Arc::new(AtomicBool::new(false));
-    let node = {
-        let (config, shutdown) = (config.clone(), shutdown.clone());
-        std::thread::spawn(move || groupforward::node::run(&config, &transport, &shutdown))
-    };
+    let (config, shutdown, node) = spawn_node(&endpoint, &tls_example_config(dir.path()), None);
     let status_key = format!("{}/status", config.api_prefix());
     let list = |session: &zenoh::Session| {
         call_service::<ListInstances>(

@@ -180,6 +180,17 @@ fn is_power_of_ten(mut n: u64) -> bool {
     n == 1
 }
 
+/// Log a failed service request. Hostile clients must not flood the log: the first failure and
+/// every power of ten are logged, the rest at debug (the status counts them).
+fn log_request_failure(failures: &AtomicU64, service: &str, message: &str) {
+    let n = failures.fetch_add(1, Ordering::Relaxed) + 1;
+    if is_power_of_ten(n) {
+        tracing::warn!(service, failed = n, "request failed: {message}");
+    } else {
+        tracing::debug!(service, "request failed: {message}");
+    }
+}
+
 /// Build a zenoh config from the node's zenoh section.
 pub fn zenoh_config(section: &ZenohSection) -> Result<zenoh::Config> {
     let mut config = match &section.config_file {
@@ -400,14 +411,7 @@ impl Transport for ZenohTransport {
                         .attachment(attachment.encode())
                         .wait(),
                     Err(message) => {
-                        // Hostile clients must not flood the log: the first failure and every
-                        // power of ten are logged, the rest at debug (the status counts them).
-                        let n = failures.fetch_add(1, Ordering::Relaxed) + 1;
-                        if is_power_of_ten(n) {
-                            tracing::warn!(service = %name, failed = n, "request failed: {message}");
-                        } else {
-                            tracing::debug!(service = %name, "request failed: {message}");
-                        }
+                        log_request_failure(&failures, &name, &message);
                         query.reply_err(message).wait()
                     }
                 };

@@ -20,7 +20,7 @@ use groupforward_msgs::RosService;
 use r2r::{QosProfile, WrappedServiceTypeSupport, WrappedTypesupport};
 
 use super::{
-    is_power_of_ten, Endpoint, JsonHandler, Publisher, Result, ServiceHandler, Sink, Transport,
+    log_request_failure, Endpoint, JsonHandler, Publisher, Result, ServiceHandler, Sink, Transport,
     TransportError,
 };
 
@@ -132,10 +132,7 @@ impl Ros2Transport {
         self.executor.spawn_ok(async move {
             while let Some(request) = requests.next().await {
                 let response = answer::<S>(&request.message, &handler).unwrap_or_else(|message| {
-                    let n = failures.fetch_add(1, Ordering::Relaxed) + 1;
-                    if is_power_of_ten(n) {
-                        tracing::warn!(service = %name, failed = n, "request failed: {message}");
-                    }
+                    log_request_failure(&failures, &name, &message);
                     failed_response::<S::Response>(&message)
                 });
                 if let Err(e) = request.respond(response) {
