@@ -5,6 +5,10 @@
 //! `min_rotation_deg` since the last keyframe, or `max_interval_secs` passed. A window is the
 //! newest keyframe and the `views − 1` keyframes before it (the most recent ones: on a moving robot
 //! these are the most covisible; a covisibility ranking is future work).
+//!
+//! Keyframes still short of a window when the camera's stream pauses or ends (`flush_after_secs`
+//! with no synced frame, or the node stopping) are not left unmapped: the newest `views` keyframes
+//! then form one more window, overlapping the previous one (fusion merges what it sees twice).
 
 use std::collections::VecDeque;
 
@@ -55,6 +59,10 @@ pub struct WindowSection {
     /// Bring each keyframe's colour to the camera's running exposure (auto-exposure hunting),
     /// measured on the surface it shares with the previous keyframe ([`crate::exposure`]).
     pub exposure_compensation: bool,
+    /// A camera with keyframes waiting for a window and no synced frame for this long (s): its
+    /// stream paused or ended, so its newest `views` keyframes form a window now. 0 or less: only
+    /// when the node stops.
+    pub flush_after_secs: f64,
 }
 
 impl Default for WindowSection {
@@ -67,6 +75,7 @@ impl Default for WindowSection {
             max_keyframes: 32,
             features_ahead: true,
             exposure_compensation: true,
+            flush_after_secs: 1.0,
         }
     }
 }
@@ -79,6 +88,8 @@ pub struct Keyframes {
     /// Keyframes added since the last window was taken.
     fresh: usize,
     exposure: ExposureTracker,
+    /// When the last frame was offered (wall clock): how long the stream has been quiet.
+    last_offer: Option<std::time::Instant>,
 }
 
 impl Keyframes {
@@ -91,6 +102,7 @@ impl Keyframes {
 
     /// Keep `frame` if it is a keyframe; returns whether it was.
     pub fn offer(&mut self, frame: &SyncedFrame) -> bool {
+        self.last_offer = Some(std::time::Instant::now());
         let p = &self.params;
         let keep = match self.frames.back() {
             None => true,
@@ -135,14 +147,41 @@ impl Keyframes {
         if self.fresh < views || self.frames.len() < views {
             return None;
         }
+        Some(self.newest_window(views))
+    }
+
+    /// The window of the keyframes still waiting for one, whatever their number: the newest
+    /// `views` keyframes (some already in the previous window). `None` when none waits or fewer
+    /// than `views` keyframes were ever kept (a model pass takes exactly `views`).
+    pub fn take_pending_window(&mut self) -> Option<Vec<SyncedFrame>> {
+        let views = self.params.views.clamp(2, 24);
+        if self.fresh == 0 || self.frames.len() < views {
+            return None;
+        }
+        Some(self.newest_window(views))
+    }
+
+    /// [`Self::take_pending_window`] once no frame was offered for `flush_after_secs` before
+    /// `now` (never when that is 0 or less).
+    pub fn take_quiet_window(&mut self, now: std::time::Instant) -> Option<Vec<SyncedFrame>> {
+        let after = self.params.flush_after_secs;
+        let quiet = self
+            .last_offer
+            .is_some_and(|last| now.saturating_duration_since(last).as_secs_f64() >= after);
+        if after > 0.0 && quiet {
+            self.take_pending_window()
+        } else {
+            None
+        }
+    }
+
+    fn newest_window(&mut self, views: usize) -> Vec<SyncedFrame> {
         self.fresh = 0;
-        Some(
-            self.frames
-                .iter()
-                .skip(self.frames.len() - views)
-                .cloned()
-                .collect(),
-        )
+        self.frames
+            .iter()
+            .skip(self.frames.len() - views)
+            .cloned()
+            .collect()
     }
 }
 
@@ -749,6 +788,87 @@ impl WindowModels {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A frame `x` metres along the track at `secs` (a keyframe every 0.2 m).
+    fn frame_at(x: f64, secs: f64) -> SyncedFrame {
+        SyncedFrame {
+            camera_name: "front".into(),
+            stamp_nanos: (secs * 1e9) as i64,
+            frame_id: "camera".into(),
+            rgb: crate::frame::RgbImage {
+                width: 0,
+                height: 0,
+                data: Vec::new(),
+            },
+            depth: None,
+            camera: crate::recon::camera::Camera::from_fov(4, 4, 1.0)
+                .unwrap_or_else(|e| panic!("{e}")),
+            world_from_camera: crate::recon::Rigid::new(
+                glam::DQuat::IDENTITY,
+                glam::DVec3::new(x, 0.0, 0.0),
+            ),
+        }
+    }
+
+    fn stamps(window: &[SyncedFrame]) -> Vec<i64> {
+        window.iter().map(|f| f.stamp_nanos / 100_000_000).collect()
+    }
+
+    #[test]
+    fn keyframes_short_of_a_window_when_the_stream_ends_form_one_with_the_newest() {
+        let mut store = Keyframes::new(WindowSection {
+            views: 4,
+            exposure_compensation: false,
+            ..WindowSection::default()
+        });
+        // Three keyframes: fewer than a model pass takes, so nothing even at the end.
+        for k in 0..3 {
+            assert!(store.offer(&frame_at(0.3 * f64::from(k), 0.1 * f64::from(k))));
+        }
+        assert_eq!(store.take_pending_window(), None);
+        // The fourth completes a window; two more wait for the next one.
+        assert!(store.offer(&frame_at(0.9, 0.3)));
+        assert_eq!(
+            store.take_window().as_deref().map(stamps),
+            Some(vec![0, 1, 2, 3])
+        );
+        assert_eq!(store.take_pending_window(), None, "nothing waits");
+        for k in 4..6 {
+            assert!(store.offer(&frame_at(0.3 * f64::from(k), 0.1 * f64::from(k))));
+        }
+        assert_eq!(store.take_window(), None);
+        assert_eq!(
+            store.take_pending_window().as_deref().map(stamps),
+            Some(vec![2, 3, 4, 5]),
+            "the newest four, two of them already in the last window"
+        );
+        assert_eq!(store.take_pending_window(), None, "taken once");
+    }
+
+    #[test]
+    fn a_quiet_stream_flushes_its_waiting_keyframes_only_after_the_configured_time() {
+        let started = std::time::Instant::now();
+        for (flush_after_secs, expected) in [(1.0, true), (0.0, false)] {
+            let mut store = Keyframes::new(WindowSection {
+                views: 2,
+                exposure_compensation: false,
+                flush_after_secs,
+                ..WindowSection::default()
+            });
+            for k in 0..3 {
+                store.offer(&frame_at(0.3 * f64::from(k), 0.1 * f64::from(k)));
+            }
+            assert!(store.take_window().is_some());
+            store.offer(&frame_at(0.9, 0.3));
+            assert_eq!(store.take_quiet_window(started), None, "not quiet yet");
+            let later = std::time::Instant::now() + std::time::Duration::from_secs(2);
+            assert_eq!(
+                store.take_quiet_window(later).is_some(),
+                expected,
+                "flush_after_secs {flush_after_secs}"
+            );
+        }
+    }
 
     fn features(value: f32) -> DenseFeatures {
         DenseFeatures {

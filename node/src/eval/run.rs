@@ -202,25 +202,37 @@ pub fn replay_scene_with(
     let (mut model_pixels_without_depth, mut lifted_at_model_depth) = (0u64, 0u64);
     let mut ahead = Vec::new();
     models.set_views(config.window.views);
-    let stream =
+    let mut stream =
         mcap::MessageStream::new(&recorded.bag).map_err(|e| EvalError::Bag(e.to_string()))?;
-    for message in stream {
-        let message = message.map_err(|e| EvalError::Bag(e.to_string()))?;
-        let Some(route) = routes.get(&message.channel.topic) else {
-            continue;
-        };
-        let step = node.step(*route, &message.data);
-        // As the node's worker does: features of each keyframe when it arrives, not in its window.
-        for frame in step
-            .keyframes
-            .iter()
-            .filter(|_| config.window.features_ahead)
-        {
-            if let Some(took) = models.prepare(frame) {
-                ahead.push(took);
+    let mut ended = false;
+    while !ended {
+        let ready = match stream.next() {
+            Some(message) => {
+                let message = message.map_err(|e| EvalError::Bag(e.to_string()))?;
+                let Some(route) = routes.get(&message.channel.topic) else {
+                    continue;
+                };
+                let step = node.step(*route, &message.data);
+                // As the node's worker does: features of each keyframe when it arrives, not in
+                // its window.
+                for frame in step
+                    .keyframes
+                    .iter()
+                    .filter(|_| config.window.features_ahead)
+                {
+                    if let Some(took) = models.prepare(frame) {
+                        ahead.push(took);
+                    }
+                }
+                step.windows
             }
-        }
-        for frames in step.windows {
+            // As the node does when a stream ends: the keyframes short of a window are mapped.
+            None => {
+                ended = true;
+                node.pending_windows()
+            }
+        };
+        for frames in ready {
             let stamp = frames.last().map_or(0, |f| f.stamp_nanos);
             let mut seen: BTreeMap<u16, u64> = BTreeMap::new();
             for frame in &frames {

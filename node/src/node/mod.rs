@@ -61,6 +61,9 @@ pub fn open_transport(config: &Config) -> crate::transport::Result<Box<dyn Trans
     }
 }
 
+/// How long the node, stopping, waits for the worker to take each last window.
+const LAST_WINDOW_PATIENCE: Duration = Duration::from_secs(30);
+
 /// Run the node on `transport` until `shutdown` is set; returns the last status.
 pub fn run(
     config: &Config,
@@ -156,6 +159,13 @@ pub fn run(
                 model_gone = handed.contains(&Err(worker::NotSent::Gone));
             }
         }
+        // A camera whose stream paused or ended with keyframes short of a window: map them now,
+        // when the worker can take the window (it waits for nothing else to come).
+        if let Some(inbox) = windows.as_ref().filter(|inbox| inbox.has_room()) {
+            if let Some(window) = node.quiet_window(Instant::now()) {
+                model_gone = inbox.send_window(window) == Err(worker::NotSent::Gone);
+            }
+        }
         if model_gone {
             windows = None;
             model_gone = false;
@@ -175,6 +185,17 @@ pub fn run(
                 node.step(route, &payload);
             }
             None => break,
+        }
+    }
+    // The keyframes still short of a window are mapped before the map is final.
+    if let Some(inbox) = &windows {
+        for window in node.pending_windows() {
+            if inbox
+                .send_window_waiting(window, LAST_WINDOW_PATIENCE)
+                .is_err()
+            {
+                node.windows_dropped += 1;
+            }
         }
     }
     // Let the worker finish the windows it has, then stop it.

@@ -87,6 +87,35 @@ impl Node {
         step
     }
 
+    /// The window of the keyframes still waiting for one of the first camera (by name) whose
+    /// stream has been quiet for `window.flush_after_secs` at `now`
+    /// ([`Keyframes::take_quiet_window`]).
+    pub fn quiet_window(&mut self, now: Instant) -> Option<Vec<SyncedFrame>> {
+        let mut cameras: Vec<&String> = self.keyframes.keys().collect();
+        cameras.sort();
+        let cameras: Vec<String> = cameras.into_iter().cloned().collect();
+        cameras.iter().find_map(|camera| {
+            self.keyframes
+                .get_mut(camera)
+                .and_then(|store| store.take_quiet_window(now))
+        })
+    }
+
+    /// Windows of every camera's keyframes still waiting for one: the stream ended.
+    pub fn pending_windows(&mut self) -> Vec<Vec<SyncedFrame>> {
+        let mut cameras: Vec<&String> = self.keyframes.keys().collect();
+        cameras.sort();
+        let cameras: Vec<String> = cameras.into_iter().cloned().collect();
+        cameras
+            .iter()
+            .filter_map(|camera| {
+                self.keyframes
+                    .get_mut(camera)
+                    .and_then(Keyframes::take_pending_window)
+            })
+            .collect()
+    }
+
     /// Count inputs the queue dropped before they were processed.
     pub fn record_dropped(&mut self, routes: &[Route]) {
         for route in routes {

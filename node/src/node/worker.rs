@@ -58,6 +58,26 @@ impl WorkerInbox {
         })
     }
 
+    /// Whether a window handed over now would be taken (none is waiting).
+    pub(super) fn has_room(&self) -> bool {
+        self.windows_waiting.load(Ordering::Acquire) == 0
+    }
+
+    /// Hand over a window, waiting while one is already waiting: for the last windows when the
+    /// node stops, which must not be dropped. Waits `patience` at most (a worker that died with
+    /// a window waiting never makes room).
+    pub(super) fn send_window_waiting(
+        &self,
+        window: Vec<SyncedFrame>,
+        patience: std::time::Duration,
+    ) -> Result<(), NotSent> {
+        let deadline = std::time::Instant::now() + patience;
+        while !self.has_room() && std::time::Instant::now() < deadline {
+            std::thread::sleep(std::time::Duration::from_millis(5));
+        }
+        self.send_window(window)
+    }
+
     /// Hand over a keyframe for its features ahead of its window; skipped (the window computes
     /// them) when too many wait already.
     pub(super) fn send_keyframe(&self, frame: SyncedFrame) -> Result<(), NotSent> {
