@@ -17,6 +17,7 @@ use rayon::prelude::*;
 use super::score::{ListedInstance, TruthObject, WindowRecord};
 use crate::config::Config;
 use crate::frame::SyncedFrame;
+use crate::graph::walls::published_box;
 use crate::graph::{GraphError, SceneMap};
 use crate::ingest::{DepthValidity, Ingest};
 use crate::node::Node;
@@ -298,6 +299,7 @@ pub fn replay_scene_with(
 /// `Vocabulary::is_listed`), each instance with its best name and its box.
 fn listed_instances(map: &SceneMap, models: &WindowModels) -> Vec<ListedInstance> {
     let vocabulary = models.vocabulary.as_ref();
+    let walls = std::cell::OnceCell::new();
     map.instances
         .iter()
         .filter(|i| vocabulary.is_none_or(|v| v.is_listed(&i.prototype, i.gaussians.len())))
@@ -311,7 +313,7 @@ fn listed_instances(map: &SceneMap, models: &WindowModels) -> Vec<ListedInstance
                 name_score: f64::from(name_score),
                 observations: i.observations,
                 gaussians: i.gaussians.len(),
-                bbox: i.oriented_box(),
+                bbox: published_box(i.oriented_box(), &walls, map, vocabulary),
             }
         })
         .collect()

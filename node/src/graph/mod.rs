@@ -14,6 +14,7 @@ pub mod fusion;
 pub mod instance;
 pub mod persist;
 pub mod scene_graph;
+pub mod walls;
 
 pub use error::GraphError;
 pub use fusion::{FusionReport, SceneMap};

@@ -258,6 +258,14 @@ impl Vocabulary {
         }
     }
 
+    /// Whether an instance with `prototype` is structure (walls, floor, ceiling: best phrase
+    /// `other`).
+    pub fn is_structure(&self, prototype: &[f32]) -> bool {
+        self.hypotheses(prototype, 1)
+            .first()
+            .is_some_and(|(phrase, _)| phrase == OTHER_PHRASE)
+    }
+
     /// Whether two prototypes name the same object class (the same best phrase, not structure).
     pub fn same_kind(&self, a: &[f32], b: &[f32]) -> bool {
         let best = |p: &[f32]| self.hypotheses(p, 1).into_iter().next().map(|(n, _)| n);

@@ -19,6 +19,7 @@ use super::error::Result;
 use super::queue::InputQueue;
 use crate::config::Config;
 use crate::frame::Keyframe;
+use crate::graph::walls::published_box;
 use crate::graph::{persist, SceneMap};
 use crate::group::semantics::Vocabulary;
 use crate::ingest::{Ingest, Route};
@@ -127,6 +128,7 @@ pub fn instance_messages_cached(
     cache: &mut BoxCache,
 ) -> Vec<Instance> {
     let mut fitted = HashMap::new();
+    let walls = std::cell::OnceCell::new();
     let messages = map
         .instances
         .iter()
@@ -138,6 +140,8 @@ pub fn instance_messages_cached(
                 _ => i.oriented_box(),
             };
             fitted.insert(i.id.clone(), (print, b));
+            // The structure changes with every window: completion is redone, fitting is cached.
+            let b = published_box(b, &walls, map, vocabulary);
             Instance {
                 id: i.id.clone(),
                 hypotheses: vocabulary
