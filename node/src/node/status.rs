@@ -1,7 +1,7 @@
 //! The node's ingest-side state ([`Node`]: ingest plus the frames it completed) and the status
 //! report it publishes every period.
 
-use std::collections::HashMap;
+use std::collections::BTreeMap;
 use std::sync::Mutex;
 use std::time::Instant;
 
@@ -34,7 +34,8 @@ pub struct Step {
 pub struct Node {
     pub ingest: Ingest,
     window: WindowSection,
-    keyframes: HashMap<String, Keyframes>,
+    /// By camera name, so several cameras' waiting windows come in a fixed order.
+    keyframes: BTreeMap<String, Keyframes>,
     started: Instant,
     period_start: Instant,
     period_received: Vec<u64>,
@@ -51,7 +52,7 @@ impl Node {
         Self {
             ingest,
             window: config.window.clone(),
-            keyframes: HashMap::new(),
+            keyframes: BTreeMap::new(),
             started: Instant::now(),
             period_start: Instant::now(),
             period_received: vec![0; cameras],
@@ -91,28 +92,16 @@ impl Node {
     /// stream has been quiet for `window.flush_after_secs` at `now`
     /// ([`Keyframes::take_quiet_window`]).
     pub fn quiet_window(&mut self, now: Instant) -> Option<Vec<SyncedFrame>> {
-        let mut cameras: Vec<&String> = self.keyframes.keys().collect();
-        cameras.sort();
-        let cameras: Vec<String> = cameras.into_iter().cloned().collect();
-        cameras.iter().find_map(|camera| {
-            self.keyframes
-                .get_mut(camera)
-                .and_then(|store| store.take_quiet_window(now))
-        })
+        self.keyframes
+            .values_mut()
+            .find_map(|store| store.take_quiet_window(now))
     }
 
     /// Windows of every camera's keyframes still waiting for one: the stream ended.
     pub fn pending_windows(&mut self) -> Vec<Vec<SyncedFrame>> {
-        let mut cameras: Vec<&String> = self.keyframes.keys().collect();
-        cameras.sort();
-        let cameras: Vec<String> = cameras.into_iter().cloned().collect();
-        cameras
-            .iter()
-            .filter_map(|camera| {
-                self.keyframes
-                    .get_mut(camera)
-                    .and_then(Keyframes::take_pending_window)
-            })
+        self.keyframes
+            .values_mut()
+            .filter_map(Keyframes::take_pending_window)
             .collect()
     }
 
