@@ -197,14 +197,33 @@ pub enum Preset {
     Realistic,
     /// Only random depth dropout with this probability (the dropout axis of the benchmarks).
     Dropout(f64),
+    /// Only the named effects of `realistic` (bit `i` set: its `i`-th effect), to learn which
+    /// of a real camera's effects costs the map what.
+    RealisticOnly(u16),
 }
 
 impl Preset {
-    /// `clean`, `realistic`, or `dropout:<probability>` (e.g. `dropout:0.1`).
+    /// `clean`, `realistic`, `realistic:<effect>,<effect>` (only those of realistic's effects,
+    /// e.g. `realistic:depth_noise,depth_dropout`), or `dropout:<probability>` (e.g.
+    /// `dropout:0.1`).
     pub fn parse(name: &str) -> Result<Self, String> {
         match name {
             "clean" => Ok(Self::Clean),
             "realistic" => Ok(Self::Realistic),
+            _ if name.starts_with("realistic:") => {
+                let kinds: Vec<&str> = realistic_effects().iter().map(Effect::kind).collect();
+                let mut mask = 0u16;
+                for wanted in name["realistic:".len()..].split(',') {
+                    let bit = kinds.iter().position(|k| *k == wanted).ok_or_else(|| {
+                        format!(
+                            "`{wanted}` in preset `{name}` is none of realistic's effects ({})",
+                            kinds.join(", ")
+                        )
+                    })?;
+                    mask |= 1 << bit;
+                }
+                Ok(Self::RealisticOnly(mask))
+            }
             _ => {
                 let probability = name
                     .strip_prefix("dropout:")
@@ -212,7 +231,8 @@ impl Preset {
                     .filter(|p| (0.0..=1.0).contains(p))
                     .ok_or_else(|| {
                         format!(
-                            "unknown effects preset `{name}` (clean, realistic, dropout:<0..1>)"
+                            "unknown effects preset `{name}` (clean, realistic, \
+                             realistic:<effect>,..., dropout:<0..1>)"
                         )
                     })?;
                 Ok(Self::Dropout(probability))
@@ -225,34 +245,28 @@ impl Preset {
             Self::Clean => "clean".into(),
             Self::Realistic => "realistic".into(),
             Self::Dropout(p) => format!("dropout:{p}"),
+            Self::RealisticOnly(mask) => {
+                let kinds: Vec<&str> = realistic_effects()
+                    .iter()
+                    .enumerate()
+                    .filter(|(i, _)| mask & (1 << i) != 0)
+                    .map(|(_, e)| e.kind())
+                    .collect();
+                format!("realistic:{}", kinds.join(","))
+            }
         }
     }
 
     pub fn effects(&self) -> Vec<Effect> {
         match *self {
             Self::Clean => Vec::new(),
-            Self::Realistic => vec![
-                Effect::MotionBlur {
-                    exposure_secs: 0.015,
-                    samples: 3,
-                },
-                Effect::Exposure {
-                    min_gain: 0.85,
-                    max_gain: 1.15,
-                    period_secs: 4.0,
-                },
-                Effect::SensorNoise { sigma: 3.0 },
-                Effect::DepthNoise { sigma_at_1m: 0.006 },
-                Effect::DepthDropout {
-                    probability: 0.03,
-                    edge_m: 0.08,
-                },
-                Effect::FrameDrops { probability: 0.05 },
-                Effect::OdometryDrift {
-                    sigma_m: 0.004,
-                    sigma_yaw_deg: 0.1,
-                },
-            ],
+            Self::Realistic => realistic_effects(),
+            Self::RealisticOnly(mask) => realistic_effects()
+                .into_iter()
+                .enumerate()
+                .filter(|(i, _)| mask & (1 << i) != 0)
+                .map(|(_, e)| e)
+                .collect(),
             // Edges only beyond any room's depth range: random pixels alone.
             Self::Dropout(probability) if probability > 0.0 => vec![Effect::DepthDropout {
                 probability,
@@ -288,6 +302,32 @@ impl Preset {
         effects.retain(|e| !matches!(e, Effect::FrameDrops { .. }));
         effects
     }
+}
+
+/// `realistic`'s effects, in the order `realistic:<effect>,...` bits refer to.
+fn realistic_effects() -> Vec<Effect> {
+    vec![
+        Effect::MotionBlur {
+            exposure_secs: 0.015,
+            samples: 3,
+        },
+        Effect::Exposure {
+            min_gain: 0.85,
+            max_gain: 1.15,
+            period_secs: 4.0,
+        },
+        Effect::SensorNoise { sigma: 3.0 },
+        Effect::DepthNoise { sigma_at_1m: 0.006 },
+        Effect::DepthDropout {
+            probability: 0.03,
+            edge_m: 0.08,
+        },
+        Effect::FrameDrops { probability: 0.05 },
+        Effect::OdometryDrift {
+            sigma_m: 0.004,
+            sigma_yaw_deg: 0.1,
+        },
+    ]
 }
 
 /// Exposure gain at `time_secs`: a sinusoid between the two gains.

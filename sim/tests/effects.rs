@@ -310,7 +310,13 @@ fn a_listed_twice_effect_is_an_error() {
 #[test]
 fn every_preset_renders_deterministically_and_a_scene_file_can_name_one() {
     use groupforward_sim::effects::Preset;
-    for name in ["clean", "realistic", "dropout:0.1", "dropout:0"] {
+    for name in [
+        "clean",
+        "realistic",
+        "realistic:depth_noise,depth_dropout",
+        "dropout:0.1",
+        "dropout:0",
+    ] {
         let preset = Preset::parse(name).unwrap();
         let mut file = base();
         file.cameras[0].width = 320;
@@ -335,9 +341,25 @@ fn every_preset_renders_deterministically_and_a_scene_file_can_name_one() {
             // 3% random plus the pixels along depth edges.
             Preset::Realistic => assert!((0.03..0.3).contains(&fraction), "{name}: {fraction}"),
             Preset::Dropout(p) => assert!((fraction - p).abs() < 0.02, "{name}: {fraction}"),
+            Preset::RealisticOnly(_) => {
+                assert!((0.03..0.3).contains(&fraction), "{name}: {fraction}");
+                // Only the named two, and the name round-trips.
+                let kinds: Vec<&str> = preset.effects().iter().map(Effect::kind).collect();
+                assert_eq!(kinds, ["depth_noise", "depth_dropout"]);
+                assert_eq!(Preset::parse(&preset.name()), Ok(preset));
+            }
         }
     }
-    for bad in ["", "noisy", "dropout:", "dropout:1.5", "dropout:x"] {
+    for bad in [
+        "",
+        "noisy",
+        "dropout:",
+        "dropout:1.5",
+        "dropout:x",
+        "realistic:",
+        "realistic:fog",
+        "realistic:depth_noise,",
+    ] {
         assert!(Preset::parse(bad).is_err(), "{bad}");
     }
 

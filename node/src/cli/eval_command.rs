@@ -22,7 +22,8 @@ pub struct ScenesArgs {
     /// Score these scene files (or `<split>:<index>` specs) instead of a split (repeatable).
     #[arg(long)]
     scene: Vec<String>,
-    /// Replace every scene's effects by a preset: `clean`, `realistic`, `dropout:<p>`.
+    /// Replace every scene's effects by a preset: `clean`, `realistic`, `dropout:<p>`, or
+    /// `realistic:<effect>,...` (only those of realistic's effects).
     #[arg(long)]
     effects: Option<String>,
 }

@@ -43,7 +43,8 @@ pub enum SimCommand {
         /// Leave out the `/gt/...` ground-truth topics.
         #[arg(long)]
         no_ground_truth: bool,
-        /// Replace the scene's effects by a preset: `clean`, `realistic`, `dropout:<p>`.
+        /// Replace the scene's effects by a preset: `clean`, `realistic`, `dropout:<p>`, or
+        /// `realistic:<effect>,...` (only those of realistic's effects).
         #[arg(long)]
         effects: Option<String>,
     },
