@@ -245,13 +245,8 @@ impl Preset {
             Self::Clean => "clean".into(),
             Self::Realistic => "realistic".into(),
             Self::Dropout(p) => format!("dropout:{p}"),
-            Self::RealisticOnly(mask) => {
-                let kinds: Vec<&str> = realistic_effects()
-                    .iter()
-                    .enumerate()
-                    .filter(|(i, _)| mask & (1 << i) != 0)
-                    .map(|(_, e)| e.kind())
-                    .collect();
+            Self::RealisticOnly(_) => {
+                let kinds: Vec<&str> = self.effects().iter().map(Effect::kind).collect();
                 format!("realistic:{}", kinds.join(","))
             }
         }
