@@ -137,6 +137,49 @@ fn eval_all_runs_every_evaluation_on_the_same_scenes_and_gathers_their_figures()
         "{table}"
     );
     assert!(!table.contains("NaN"), "{table}");
+    // Each headline figure with its interval over scenes, and the per-scene counts a later run
+    // is compared against.
+    let map = &summary["map"];
+    let interval = &map["intervals_95"]["recall_at_25"];
+    assert_eq!(figure(&interval["value"]), recall);
+    assert!(figure(&interval["low"]) <= recall && recall <= figure(&interval["high"]));
+    assert!(map["scenes"][0]["counts"]["objects_scored"].as_u64() > Some(0));
+}
+
+#[test]
+fn eval_map_against_an_earlier_run_gives_the_paired_difference_and_refuses_other_scenes() {
+    let (first, _) = eval(&["map"]);
+    let against = first.path().to_str().expect("a UTF-8 path");
+    // The same scene again: a run is deterministic, so every difference is zero.
+    let (second, run) = eval(&["map", "--against", against]);
+    let summary: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(second.path().join("summary.json")).expect("summary.json"),
+    )
+    .expect("JSON");
+    let difference = &summary["against"]["difference_95"];
+    for name in ["recall_at_25", "recall_at_50", "mean_iou", "precision"] {
+        for end in ["value", "low", "high"] {
+            assert_eq!(difference[name][end].as_f64(), Some(0.0), "{difference}");
+        }
+    }
+    let printed = String::from_utf8_lossy(&run.stdout);
+    assert!(
+        printed.contains("recall_at_25 +0.0 pts (+0.0 to +0.0, within the spread)"),
+        "{printed}"
+    );
+    // A run over other scenes cannot be paired with this one: refused before any replay.
+    let refused = std::process::Command::new(env!("CARGO_BIN_EXE_groupforward"))
+        .args(["eval", "map", "--first-index", "11", "--scenes", "1"])
+        .args(["--against", against, "--out"])
+        .arg(second.path().join("other"))
+        .output()
+        .expect("the groupforward binary runs");
+    assert!(!refused.status.success());
+    assert!(
+        String::from_utf8_lossy(&refused.stderr).contains("no scene `benchmark_00011`"),
+        "{}",
+        String::from_utf8_lossy(&refused.stderr)
+    );
 }
 
 #[test]

@@ -2,13 +2,15 @@
 //! the shipped (or given) models, the final map scored against ground truth. Writes
 //! `DIR/objects.csv` (one row per object), `DIR/instances.csv` (one row per listed instance:
 //! where the false positives are), `DIR/summary.json` and `DIR/summary.md`, and prints
-//! the table.
+//! the table with each headline figure's 95% interval over scenes; `--against` an earlier run's
+//! directory also gives the paired difference, so a change is judged against the spread.
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use groupforward::config::Config;
+use groupforward::eval::interval::{intervals, paired_differences, Interval};
 use groupforward::eval::run::{run_scene, SceneRun};
 use groupforward::eval::score::{
     score_instances, score_map, score_windows, Counts, InstanceRow, ObjectRow, Summary,
@@ -98,7 +100,8 @@ pub struct Scored {
     pub instance_rows: Vec<InstanceRow>,
     /// Per scene, the final map's content hash (a run is deterministic: the same hash again).
     pub map_hashes: Vec<(String, String)>,
-    pub per_scene: Vec<(String, Summary, usize)>,
+    /// Per scene: its name, counts and windows.
+    pub per_scene: Vec<(String, Counts, usize)>,
     pub window_times: Vec<StageTimes>,
     pub depth: DepthValidity,
     pub model_pixels_without_depth: u64,
@@ -154,7 +157,7 @@ impl Scored {
         self.model_pixels_without_depth += run.model_pixels_without_depth;
         self.lifted_at_model_depth += run.lifted_at_model_depth;
         self.per_scene
-            .push((run.scene.clone(), counts.summary(), run.windows.len()));
+            .push((run.scene.clone(), counts, run.windows.len()));
     }
 }
 
@@ -167,8 +170,22 @@ pub fn eval_map(
     files: &[SceneFile],
     model: Option<PathBuf>,
     effects: Option<&str>,
+    against: Option<&Path>,
     out: &Path,
 ) -> Result<()> {
+    // Read first: a wrong directory fails before ten minutes of replay, not after.
+    let before = against.map(read_scene_counts).transpose()?;
+    if let Some(before) = &before {
+        if let Some(missing) = files
+            .iter()
+            .find(|f| !before.iter().any(|(name, _)| *name == f.name))
+        {
+            bail!(
+                "the run compared against has no scene `{}`: --against needs a run over the same scenes",
+                missing.name
+            );
+        }
+    }
     let config = eval_config(model);
     let models = shipped_models();
     let mut window_models = WindowModels::load(&config.models, &config.semantics)
@@ -186,6 +203,14 @@ pub fn eval_map(
         lifted_at_model_depth,
     } = score_scenes(files, &config, &mut window_models, "eval map")?;
     let summary = total.summary();
+    let scene_counts: Vec<Counts> = per_scene.iter().map(|(_, c, _)| *c).collect();
+    let spread = intervals(&scene_counts);
+    let difference = before
+        .map(|before| {
+            let names: Vec<&str> = per_scene.iter().map(|(n, _, _)| n.as_str()).collect();
+            paired(&names, &scene_counts, &before)
+        })
+        .transpose()?;
     let mut csv = csv_writer(&out.join("objects.csv"))?;
     writeln!(
         csv,
@@ -242,8 +267,15 @@ pub fn eval_map(
             .iter()
             .map(|(scene, hash)| (scene.clone(), serde_json::json!(hash)))
             .collect::<serde_json::Map<_, _>>(),
-        "scenes": per_scene.iter().map(|(name, s, windows)| serde_json::json!({
-            "scene": name, "windows": windows, "summary": s})).collect::<Vec<_>>(),
+        "intervals_95": intervals_json(&spread),
+        "against": match (&against, &difference) {
+            (Some(dir), Some(d)) => serde_json::json!({
+                "run": dir.display().to_string(), "difference_95": intervals_json(d)}),
+            _ => serde_json::Value::Null,
+        },
+        "scenes": per_scene.iter().map(|(name, counts, windows)| serde_json::json!({
+            "scene": name, "windows": windows, "summary": counts.summary(),
+            "counts": counts})).collect::<Vec<_>>(),
         "depth": {
             "pixels": depth.pixels,
             "invalid": depth.invalid(),
@@ -276,7 +308,19 @@ pub fn eval_map(
         out.join("summary.json"),
         serde_json::to_string_pretty(&json)?,
     )?;
-    let table = markdown(&summary, &per_scene);
+    let mut table = markdown(&summary, &per_scene);
+    table.push_str(&format!(
+        "\n95% intervals over the {} scenes (bootstrap): {}\n",
+        per_scene.len(),
+        describe_intervals(&spread, false)
+    ));
+    if let (Some(dir), Some(d)) = (against, &difference) {
+        table.push_str(&format!(
+            "against {} (same scenes, paired): {}\n",
+            dir.display(),
+            describe_intervals(d, true)
+        ));
+    }
     std::fs::write(out.join("summary.md"), &table)?;
     print!("{table}");
     println!(
@@ -317,7 +361,95 @@ fn csv_writer(path: &Path) -> Result<std::io::BufWriter<std::fs::File>> {
     ))
 }
 
-fn markdown(total: &Summary, per_scene: &[(String, Summary, usize)]) -> String {
+/// Per scene, its counts, from an earlier run's `summary.json`.
+fn read_scene_counts(dir: &Path) -> Result<Vec<(String, Counts)>> {
+    #[derive(serde::Deserialize)]
+    struct Run {
+        scenes: Vec<SceneEntry>,
+    }
+    #[derive(serde::Deserialize)]
+    struct SceneEntry {
+        scene: String,
+        counts: Counts,
+    }
+    let path = dir.join("summary.json");
+    let text =
+        std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
+    let run: Run = serde_json::from_str(&text).with_context(|| {
+        format!(
+            "{} holds no per-scene counts (written by `eval map` since the intervals were added)",
+            path.display()
+        )
+    })?;
+    Ok(run
+        .scenes
+        .into_iter()
+        .map(|s| (s.scene, s.counts))
+        .collect())
+}
+
+/// The paired differences against `before`, which must hold every scene of this run.
+fn paired(names: &[&str], now: &[Counts], before: &[(String, Counts)]) -> Result<Vec<Interval>> {
+    let matched = names
+        .iter()
+        .map(|name| {
+            before
+                .iter()
+                .find(|(n, _)| n == name)
+                .map(|(_, c)| *c)
+                .with_context(|| format!("the run compared against has no scene `{name}`"))
+        })
+        .collect::<Result<Vec<_>>>()?;
+    Ok(paired_differences(now, &matched))
+}
+
+fn intervals_json(intervals: &[Interval]) -> serde_json::Value {
+    intervals
+        .iter()
+        .map(|i| {
+            (
+                i.name.to_owned(),
+                serde_json::json!({"value": i.value, "low": i.low, "high": i.high}),
+            )
+        })
+        .collect::<serde_json::Map<_, _>>()
+        .into()
+}
+
+/// `recall_at_25 75.2% (71.0 to 79.1)`; a difference in points (mean IoU stays a ratio) with
+/// whether its interval excludes zero.
+fn describe_intervals(intervals: &[Interval], difference: bool) -> String {
+    intervals
+        .iter()
+        .map(|i| {
+            let (scale, digits, unit) = match (i.name == "mean_iou", difference) {
+                (true, _) => (1.0, 3, ""),
+                (false, false) => (100.0, 1, "%"),
+                (false, true) => (100.0, 1, " pts"),
+            };
+            let (value, low, high) = (scale * i.value, scale * i.low, scale * i.high);
+            if difference {
+                let verdict = if i.excludes_zero() {
+                    "beyond the spread"
+                } else {
+                    "within the spread"
+                };
+                format!(
+                    "{} {value:+.digits$}{unit} ({low:+.digits$} to {high:+.digits$}, {verdict})",
+                    i.name
+                )
+            } else {
+                format!(
+                    "{} {value:.digits$}{unit} ({low:.digits$} to {high:.digits$})",
+                    i.name
+                )
+            }
+        })
+        .collect::<Vec<_>>()
+        .join("; ")
+}
+
+fn markdown(total: &Summary, per_scene: &[(String, Counts, usize)]) -> String {
     let mut out = String::from(
         "| scene | objects | listed | recall@0.25 | recall@0.5 | mean IoU | precision | duplicates | merged | names | room | id switches / 100 | map id changes / 100 | ids on two objects | window recall@0.25 | window precision |\n\
          | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |\n",
@@ -342,8 +474,8 @@ fn markdown(total: &Summary, per_scene: &[(String, Summary, usize)]) -> String {
             100.0 * s.window_precision,
         )
     };
-    for (name, s, _) in per_scene {
-        out.push_str(&row(name, s));
+    for (name, counts, _) in per_scene {
+        out.push_str(&row(name, &counts.summary()));
     }
     out.push_str(&row("**all**", total));
     out

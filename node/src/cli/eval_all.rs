@@ -21,7 +21,7 @@ pub fn eval_all(
 ) -> Result<()> {
     let part = |name: &str| -> PathBuf { out.join(name) };
     eval_window(files, None, windows, &part("window"))?;
-    eval_map(files, None, effects, &part("map"))?;
+    eval_map(files, None, effects, None, &part("map"))?;
     eval_refer(files, &eval_config(None), None, false, &part("refer"))?;
     let read = |name: &str| -> Result<Value> {
         let path = part(name).join("summary.json");

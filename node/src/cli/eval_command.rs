@@ -51,6 +51,11 @@ pub enum EvalCommand {
         /// Reconstruction model manifest (default: the shipped RGB-D model).
         #[arg(long)]
         model: Option<PathBuf>,
+        /// An earlier run's output directory over the same scenes: also print the paired
+        /// difference of the headline figures with its 95% interval (is a change beyond the
+        /// spread between scenes?).
+        #[arg(long)]
+        against: Option<PathBuf>,
         #[arg(long, default_value = "target/eval/map")]
         out: PathBuf,
     },
@@ -114,9 +119,18 @@ pub enum EvalCommand {
 
 pub fn run(command: EvalCommand) -> Result<()> {
     match command {
-        EvalCommand::Map { scenes, model, out } => {
-            eval_map(&scenes.files()?, model, scenes.effects.as_deref(), &out)
-        }
+        EvalCommand::Map {
+            scenes,
+            model,
+            against,
+            out,
+        } => eval_map(
+            &scenes.files()?,
+            model,
+            scenes.effects.as_deref(),
+            against.as_deref(),
+            &out,
+        ),
         EvalCommand::Window {
             scenes,
             model,

@@ -2,6 +2,8 @@
 //! `groupforward eval`:
 //!
 //! - [`baseline`]: the ablation without instances (semantic features lifted per voxel);
+//! - [`interval`]: 95% bootstrap intervals over scenes, of a run's figures and of the
+//!   difference between two runs;
 //! - [`run`]: a sim scene through the node's stages (bag → ingest → keyframes → window pass →
 //!   fusion), every window processed, ground truth kept beside the pipeline;
 //! - [`score`]: the final map and each window's instances scored against the objects;
@@ -11,6 +13,7 @@
 //!   views).
 
 pub mod baseline;
+pub mod interval;
 pub mod refer;
 pub mod run;
 pub mod score;

@@ -7,7 +7,7 @@
 use std::collections::HashMap;
 
 use pathfinding::prelude::{kuhn_munkres, Matrix};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::recon::boxes::OrientedBox;
 
@@ -114,7 +114,7 @@ pub struct ObjectRow {
 }
 
 /// Counts that add up over scenes; [`Counts::summary`] turns them into rates.
-#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
 pub struct Counts {
     pub objects_scored: u64,
     pub objects_not_seen: u64,
