@@ -535,6 +535,80 @@ fn touching_fragments_named_alike_fold_and_touching_objects_of_two_kinds_do_not(
 }
 
 #[test]
+fn a_table_s_legs_fold_into_its_top_whatever_they_are_named_but_a_chair_a_lamp_and_a_bottle_stay() {
+    // A table top 0.8 x 0.6 m at 0.72-0.75 m and its four legs, each grouped apart and named
+    // "chair" by the semantic model; beside it a chair, a floor lamp's pole (as thin as a leg but
+    // outside the top and rising above it) and, standing on the top, a bottle (thin and upright,
+    // but above the top).
+    let piece = |centre: Vec3, half: Vec3, prototype: [f32; 3]| WindowInstance {
+        gaussians: cuboid(centre, half),
+        prototype: prototype.to_vec(),
+        support: 100,
+    };
+    let leg_half = Vec3::new(0.025, 0.025, 0.35);
+    let legs = [(-0.35, -0.25), (0.35, -0.25), (-0.35, 0.25), (0.35, 0.25)]
+        .map(|(x, y)| piece(Vec3::new(x, y, 0.35), leg_half, CHAIR));
+    let top = piece(
+        Vec3::new(0.0, 0.0, 0.7375),
+        Vec3::new(0.4, 0.3, 0.0125),
+        TABLE,
+    );
+    let chair = piece(
+        Vec3::new(1.0, 0.0, 0.45),
+        Vec3::new(0.225, 0.225, 0.45),
+        CHAIR,
+    );
+    let lamp = piece(
+        Vec3::new(-1.0, 0.0, 0.75),
+        Vec3::new(0.025, 0.025, 0.75),
+        CHAIR,
+    );
+    let bottle = piece(
+        Vec3::new(0.1, 0.0, 0.875),
+        Vec3::new(0.025, 0.025, 0.125),
+        CHAIR,
+    );
+    let structure = [0.0, 0.0, 1.0];
+    // Named by the first two entries: the third is structure.
+    let same_name = |a: &[f32], b: &[f32]| a == b && a != structure;
+    let mut map = SceneMap::new(FusionParams::default());
+    let mut window = vec![top];
+    window.extend(legs);
+    window.extend([chair, lamp, bottle]);
+    let report = map.fuse_named(window, &[], 1, same_name).unwrap();
+    assert_eq!(map.instances.len(), 4, "{report:?}");
+    let table = &map.instances[0];
+    assert_eq!(table.id, "inst_000001");
+    let (lo, hi) = table.bounds();
+    assert!(
+        lo.z < 0.05 && hi.z > 0.74,
+        "the table reaches the floor: {lo} {hi}"
+    );
+    assert_eq!(report.assigned[..5], ["inst_000001"; 5]);
+    // The chair, the lamp and the bottle, each still itself.
+    let mut heights: Vec<f32> = map.instances[1..]
+        .iter()
+        .map(|i| i.bounds().1.z - i.bounds().0.z)
+        .collect();
+    heights.sort_by(f32::total_cmp);
+    for (height, expected) in heights.iter().zip([0.25, 0.9, 1.5]) {
+        assert!((height - expected).abs() < 0.03, "{heights:?}");
+    }
+    // A leg that is structure (a wall's edge the model called "other") does not fold.
+    let mut walled = SceneMap::new(FusionParams::default());
+    let window = vec![
+        piece(
+            Vec3::new(0.0, 0.0, 0.7375),
+            Vec3::new(0.4, 0.3, 0.0125),
+            TABLE,
+        ),
+        piece(Vec3::new(0.35, 0.25, 0.35), leg_half, structure),
+    ];
+    walled.fuse_named(window, &[], 1, same_name).unwrap();
+    assert_eq!(walled.instances.len(), 2);
+}
+
+#[test]
 fn overlapping_instances_with_alike_features_but_two_names_are_not_duplicates() {
     // A chair pushed under a table's edge: their boxes overlap and their pooled features are
     // alike (cosine 0.92, above the duplicate threshold), but the vocabulary names one "chair"

@@ -236,18 +236,21 @@ pub fn eval_map(
     let mut csv = csv_writer(&out.join("instances.csv"))?;
     writeln!(
         csv,
-        "scene,instance,name,name_score,observations,gaussians,size_x,size_y,size_z,outcome,object,object_class,iou"
+        "scene,instance,name,name_score,observations,gaussians,centre_x,centre_y,centre_z,size_x,size_y,size_z,outcome,object,object_class,iou"
     )?;
     for r in &instance_rows {
         writeln!(
             csv,
-            "{},{},{},{:.3},{},{},{:.3},{:.3},{:.3},{},{},{},{:.4}",
+            "{},{},{},{:.3},{},{},{:.3},{:.3},{:.3},{:.3},{:.3},{:.3},{},{},{},{:.4}",
             r.scene,
             r.instance,
             r.name,
             r.name_score,
             r.observations,
             r.gaussians,
+            r.centre[0],
+            r.centre[1],
+            r.centre[2],
             r.size[0],
             r.size[1],
             r.size[2],

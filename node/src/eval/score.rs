@@ -63,6 +63,8 @@ pub struct InstanceRow {
     pub name_score: f64,
     pub observations: u32,
     pub gaussians: usize,
+    /// Its box's centre (world frame) and size.
+    pub centre: [f64; 3],
     pub size: [f64; 3],
     pub outcome: InstanceOutcome,
     /// The object it was matched to (or overlaps most, for duplicates and unmatched ones; 0
@@ -421,6 +423,7 @@ pub fn score_instances(
                 name_score: instance.name_score,
                 observations: instance.observations,
                 gaussians: instance.gaussians,
+                centre: instance.bbox.centre.to_array(),
                 size: instance.bbox.size.to_array(),
                 outcome,
                 object: object.map_or(0, |k| objects[k].id),

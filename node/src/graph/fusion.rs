@@ -54,6 +54,49 @@ const PART_COVERED: f32 = 0.5;
 /// other within the overlap radius (a seam, not an overlap).
 const FRAGMENT_TOUCH: f32 = 0.02;
 
+/// A leg (or a side panel): an instance at most this thick along x or y (axis-aligned bounds),
+/// at least [`LEG_MIN_HEIGHT_M`] tall and twice as tall as it is thick.
+const LEG_MAX_THICKNESS_M: f32 = 0.2;
+const LEG_MIN_HEIGHT_M: f32 = 0.3;
+/// A leg's top lies at most this far below the top of the surface it carries (a table top's
+/// thickness, and the top seen a little higher through depth noise) ...
+const LEG_TOP_BELOW_M: f32 = 0.15;
+/// ... and at most this far above it.
+const LEG_TOP_ABOVE_M: f32 = 0.03;
+/// A leg lies under the surface: its bounds within the surface's grown by this along x and y
+/// (a top seen in part, at a slant, ends short of its legs by up to 0.2 m on the benchmark).
+const LEG_INSIDE_M: f32 = 0.15;
+/// What a leg carries is at least this wide along x and y.
+const SURFACE_MIN_WIDTH_M: f32 = 0.3;
+
+/// Whether an instance with bounds `leg` is a leg (or side panel) of the one with bounds
+/// `surface`: thin and upright, under the surface (within its footprint) and ending just below
+/// its top, reaching at least as low as the surface does. The window grouping often cuts a table's legs or a desk's side from its top (a leg is
+/// a few pixels wide at the model's resolution) and the semantic model then names a lone leg
+/// "chair" or "trash bin"; a chair, a bin or a cabinet under a desk is thicker, a floor lamp or
+/// a chair's back rises above the top, and a bottle stands on it.
+pub fn is_leg_of(leg: (Vec3, Vec3), surface: (Vec3, Vec3)) -> bool {
+    let (size, surface_size) = (leg.1 - leg.0, surface.1 - surface.0);
+    let thickness = size.x.min(size.y);
+    let finite =
+        leg.0.is_finite() && leg.1.is_finite() && surface.0.is_finite() && surface.1.is_finite();
+    let upright =
+        thickness <= LEG_MAX_THICKNESS_M && size.z >= LEG_MIN_HEIGHT_M && size.z >= 2.0 * thickness;
+    let carries = surface_size.x.min(surface_size.y) >= SURFACE_MIN_WIDTH_M;
+    let under = (0..2).all(|a| {
+        leg.0[a] >= surface.0[a] - LEG_INSIDE_M && leg.1[a] <= surface.1[a] + LEG_INSIDE_M
+    });
+    let top = leg.1.z - surface.1.z;
+    // A leg reaches at least as low as what it carries; a monitor on a desk does not.
+    let reaches_down = leg.0.z <= surface.0.z + LEG_TOP_ABOVE_M;
+    finite
+        && upright
+        && carries
+        && under
+        && reaches_down
+        && (-LEG_TOP_BELOW_M..=LEG_TOP_ABOVE_M).contains(&top)
+}
+
 /// At most this many points per instance enter the overlap test (an even stride).
 const ASSOCIATION_POINTS: usize = 2048;
 
@@ -518,16 +561,26 @@ impl SceneMap {
     /// prototypes and are, by `same_kind` (the caller's vocabulary: the same best name, not
     /// structure), the same kind of thing. A bed the window grouping cut into its frame, mattress
     /// and headboard becomes one bed again; two chairs that touch stay two unless their
-    /// prototypes and names agree, and a chair against a table never folds into it. Returns
-    /// (absorbed, survivor) id pairs.
+    /// prototypes and names agree, and a chair against a table never folds into it. A leg under a
+    /// surface ([`is_leg_of`]) folds whatever it is named, both being objects (`same_kind` of a
+    /// prototype with itself: not structure). Returns (absorbed, survivor) id pairs.
     pub fn fold_fragments(
         &mut self,
         same_kind: impl Fn(&[f32], &[f32]) -> bool,
     ) -> Vec<(String, String)> {
         let p = self.params;
         let mut keep = vec![true; self.instances.len()];
+        let is_object =
+            |prototype: &[f32]| !prototype.is_empty() && same_kind(prototype, prototype);
         let folded = self.fold_pairs(&mut keep, |instances, footprints, a, b| {
             let (pa, pb) = (&instances[a].prototype, &instances[b].prototype);
+            let (bounds_a, bounds_b) = (footprints.bounds[a], footprints.bounds[b]);
+            if is_object(pa)
+                && is_object(pb)
+                && (is_leg_of(bounds_a, bounds_b) || is_leg_of(bounds_b, bounds_a))
+            {
+                return true;
+            }
             if pa.is_empty()
                 || pb.is_empty()
                 || cosine(pa, pb) < p.duplicate_similarity
@@ -658,6 +711,38 @@ mod tests {
             );
         }
         g
+    }
+
+    #[test]
+    fn a_leg_needs_finite_bounds_an_upright_shape_and_a_surface_over_it() {
+        let top = (Vec3::new(-0.4, -0.3, 0.72), Vec3::new(0.4, 0.3, 0.75));
+        let leg = (Vec3::new(0.3, 0.2, 0.0), Vec3::new(0.35, 0.25, 0.7));
+        assert!(is_leg_of(leg, top));
+        assert!(!is_leg_of(top, leg), "the top is no leg of its leg");
+        let empty = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+        let nan = (Vec3::splat(f32::NAN), Vec3::splat(f32::NAN));
+        for bad in [empty, nan] {
+            assert!(!is_leg_of(bad, top) && !is_leg_of(leg, bad));
+        }
+        // A point (one Gaussian) and a flat stub are not upright; a leg ending a hand below the
+        // top carries something else; a leg poking out beside the top is not under it.
+        let point = (Vec3::new(0.3, 0.2, 0.5), Vec3::new(0.3, 0.2, 0.5));
+        let stub = (Vec3::new(0.3, 0.2, 0.0), Vec3::new(0.35, 0.25, 0.05));
+        let short = (Vec3::new(0.3, 0.2, 0.0), Vec3::new(0.35, 0.25, 0.5));
+        let beside = (Vec3::new(0.52, 0.2, 0.0), Vec3::new(0.57, 0.25, 0.7));
+        // A monitor standing on a desk whose points reach the floor: thin, upright, under the
+        // desk's top and ending near the top of its bounds (the monitor's own), but it does not
+        // reach down.
+        let desk = (Vec3::new(-0.4, -0.3, 0.0), Vec3::new(0.4, 0.3, 1.2));
+        let monitor = (Vec3::new(-0.25, 0.0, 0.75), Vec3::new(0.25, 0.05, 1.2));
+        assert!(!is_leg_of(monitor, desk));
+        assert!(is_leg_of(
+            (Vec3::new(-0.25, 0.0, 0.0), Vec3::new(0.25, 0.05, 1.2)),
+            desk
+        ));
+        for not_a_leg in [point, stub, short, beside] {
+            assert!(!is_leg_of(not_a_leg, top), "{not_a_leg:?}");
+        }
     }
 
     #[test]
