@@ -822,10 +822,16 @@ fn map_of(n: usize, prototype: [f32; 3]) -> SceneMap {
 #[test]
 fn a_saving_process_killed_at_random_points_always_leaves_a_snapshot_that_loads() {
     const WRITER: &str = "GF_CRASH_WRITER";
+    const READY: &str = "GF_CRASH_WRITER_READY";
     let (a, b) = (map_of(12, CHAIR), map_of(20, TABLE));
     // The child: this test, run again with the variable set, saving a and b in turn until killed.
     if let Some(path) = std::env::var_os(WRITER) {
         let path = std::path::PathBuf::from(path);
+        // Building the maps takes a dev build tens of milliseconds, more on a loaded machine: the
+        // parent's kill clock starts when the saving does, or every kill lands before it.
+        if let Some(ready) = std::env::var_os(READY) {
+            std::fs::write(ready, b"saving").unwrap();
+        }
         loop {
             persist::save(&a, &path).unwrap();
             persist::save(&b, &path).unwrap();
@@ -840,8 +846,10 @@ fn a_saving_process_killed_at_random_points_always_leaves_a_snapshot_that_loads(
         "{size} bytes: too small for kills to land mid-write"
     );
     let exe = std::env::current_exe().unwrap();
+    let signals = tempfile::tempdir().unwrap();
     let (mut seen_a, mut seen_b, mut mid_write) = (0, 0, 0);
     for trial in 0u64..100 {
+        let ready = signals.path().join(format!("ready-{trial}"));
         let mut child = std::process::Command::new(&exe)
             .args([
                 "--exact",
@@ -849,13 +857,18 @@ fn a_saving_process_killed_at_random_points_always_leaves_a_snapshot_that_loads(
                 "--test-threads=1",
             ])
             .env(WRITER, &path)
+            .env(READY, &ready)
             .stdout(std::process::Stdio::null())
             .stderr(std::process::Stdio::null())
             .spawn()
             .unwrap();
-        // A spread of kill times (a seeded stride, not wall-clock luck), from before the first
-        // write to many writes in.
-        let wait = 5 + (trial * 37) % 60;
+        let started = std::time::Instant::now();
+        while !ready.exists() && started.elapsed() < std::time::Duration::from_secs(30) {
+            std::thread::sleep(std::time::Duration::from_millis(1));
+        }
+        // A spread of kill times after the saving began (a seeded stride, not wall-clock luck),
+        // from inside the first write to many writes in.
+        let wait = (trial * 37) % 60;
         std::thread::sleep(std::time::Duration::from_millis(wait));
         child.kill().unwrap(); // SIGKILL: no destructor, no cleanup runs
         child.wait().unwrap();
