@@ -173,19 +173,26 @@ pub fn eval_map(
     against: Option<&Path>,
     out: &Path,
 ) -> Result<()> {
-    // Read first: a wrong directory fails before ten minutes of replay, not after.
-    let before = against.map(read_scene_counts).transpose()?;
-    if let Some(before) = &before {
-        if let Some(missing) = files
-            .iter()
-            .find(|f| !before.iter().any(|(name, _)| *name == f.name))
-        {
-            bail!(
-                "the run compared against has no scene `{}`: --against needs a run over the same scenes",
-                missing.name
-            );
-        }
-    }
+    // Read and paired with this run's scenes first: a wrong directory fails before ten minutes of
+    // replay, not after.
+    let before = against
+        .map(|dir| -> Result<Vec<Counts>> {
+            let earlier = read_scene_counts(dir)?;
+            files
+                .iter()
+                .map(|f| {
+                    earlier
+                        .iter()
+                        .find(|(name, _)| *name == f.name)
+                        .map(|(_, counts)| *counts)
+                        .with_context(|| format!(
+                            "the run compared against has no scene `{}`: --against needs a run over the same scenes",
+                            f.name
+                        ))
+                })
+                .collect()
+        })
+        .transpose()?;
     let config = eval_config(model);
     let models = shipped_models();
     let mut window_models = WindowModels::load(&config.models, &config.semantics)
@@ -205,12 +212,8 @@ pub fn eval_map(
     let summary = total.summary();
     let scene_counts: Vec<Counts> = per_scene.iter().map(|(_, c, _)| *c).collect();
     let spread = intervals(&scene_counts);
-    let difference = before
-        .map(|before| {
-            let names: Vec<&str> = per_scene.iter().map(|(n, _, _)| n.as_str()).collect();
-            paired(&names, &scene_counts, &before)
-        })
-        .transpose()?;
+    // Scenes are scored in the order of `files`, the order `before` was paired in.
+    let difference = before.map(|before| paired_differences(&scene_counts, &before));
     let mut csv = csv_writer(&out.join("objects.csv"))?;
     writeln!(
         csv,
@@ -389,21 +392,6 @@ fn read_scene_counts(dir: &Path) -> Result<Vec<(String, Counts)>> {
         .into_iter()
         .map(|s| (s.scene, s.counts))
         .collect())
-}
-
-/// The paired differences against `before`, which must hold every scene of this run.
-fn paired(names: &[&str], now: &[Counts], before: &[(String, Counts)]) -> Result<Vec<Interval>> {
-    let matched = names
-        .iter()
-        .map(|name| {
-            before
-                .iter()
-                .find(|(n, _)| n == name)
-                .map(|(_, c)| *c)
-                .with_context(|| format!("the run compared against has no scene `{name}`"))
-        })
-        .collect::<Result<Vec<_>>>()?;
-    Ok(paired_differences(now, &matched))
 }
 
 fn intervals_json(intervals: &[Interval]) -> serde_json::Value {
