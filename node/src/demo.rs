@@ -602,13 +602,19 @@ pub fn run_demo(options: &DemoOptions) -> Result<DemoReport> {
         .collect();
     let map_score = score_listed(&sim, &instances, &options.scene);
     // The node published its final map while stopping; give the last messages time to arrive.
-    let final_count = instances.len();
+    // An earlier map's message can have as many detections, so wait for the listed boxes.
     let published = wait_for("publish its final map", timeout, || {
         let published = decode_outputs(&inbox, &output_endpoints);
-        let arrived = published
-            .detections
-            .as_ref()
-            .is_some_and(|d| d.detections.len() == final_count);
+        let arrived = published.detections.as_ref().is_some_and(|d| {
+            d.detections.len() == instances.len()
+                && d.detections.iter().all(|detection| {
+                    instances.iter().any(|i| {
+                        i.id == detection.id
+                            && i.pose == detection.bbox.center
+                            && i.size == detection.bbox.size
+                    })
+                })
+        });
         arrived.then_some(published)
     })
     .unwrap_or_else(|_| decode_outputs(&inbox, &output_endpoints));

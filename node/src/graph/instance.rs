@@ -4,6 +4,7 @@ use glam::Vec3;
 
 use crate::recon::boxes::{OrientedBox, DEFAULT_TRIM};
 use crate::recon::gaussians::{voxel_downsample, Gaussians};
+use crate::recon::round::fit_object_box;
 
 /// A persistent instance.
 #[derive(Debug, Clone, PartialEq)]
@@ -29,9 +30,10 @@ impl Instance {
         (lo + hi) / 2.0
     }
 
-    /// The box the map publishes for this instance (and the evaluation scores).
+    /// The box the map publishes for this instance (and the evaluation scores): fitted to its
+    /// points, completed to the whole circle when they are the seen side of a round object.
     pub fn oriented_box(&self) -> OrientedBox {
-        OrientedBox::fit(&self.gaussians.means, DEFAULT_TRIM)
+        fit_object_box(&self.gaussians.means, DEFAULT_TRIM)
     }
 
     /// Add Gaussians (voxel-merged, capped) and a prototype observed with `weight` (count-weighted

@@ -12,6 +12,7 @@ pub mod gauge;
 pub mod gaussians;
 pub mod metrics;
 pub mod raster;
+pub mod round;
 
 use glam::{DMat3, DQuat, DVec3};
 
