@@ -5,10 +5,9 @@
 //! circle's square. Nothing here knows class names: the shape of the points decides, and a set
 //! that is no clear arc (flat faces, an L of two faces, a filled top) keeps its fitted box.
 
-use std::collections::HashMap;
-
 use glam::{DVec2, DVec3, Vec3};
 use rand::{Rng, SeedableRng};
+use rustc_hash::FxHashMap;
 
 use super::boxes::OrientedBox;
 
@@ -89,9 +88,12 @@ pub fn round_footprint(points: &[DVec3], fitted: &OrientedBox) -> Option<Circle>
     };
     // Seeded: the same points always give the same box.
     let mut draw = rand_chacha::ChaCha8Rng::seed_from_u64(0x5eed);
+    let too_many_outside = |circle: Circle| {
+        outside(&everything, circle) as f64 > MAX_OUTSIDE_SHARE * everything.len() as f64
+    };
+    let n = footprint.len();
     let mut best: Option<(usize, Circle)> = None;
     for _ in 0..HYPOTHESES {
-        let n = footprint.len();
         let (a, b, c) = (
             draw.random_range(0..n),
             draw.random_range(0..n),
@@ -105,11 +107,10 @@ pub fn round_footprint(points: &[DVec3], fitted: &OrientedBox) -> Option<Circle>
         }
         // A hypothesis with points outside it is no object's outline (the base of a lamp under
         // its wider shade); among the others, the one most points lie on.
-        let (count, _) = count_on_and_outside(&footprint, circle);
-        let (_, outside) = count_on_and_outside(&everything, circle);
-        if outside as f64 > MAX_OUTSIDE_SHARE * everything.len() as f64 {
+        if too_many_outside(circle) {
             continue;
         }
+        let count = inliers(&footprint, circle).count();
         if best.is_none_or(|(most, _)| count > most) {
             best = Some((count, circle));
         }
@@ -119,12 +120,11 @@ pub fn round_footprint(points: &[DVec3], fitted: &OrientedBox) -> Option<Circle>
     let on_hypothesis: Vec<DVec2> = inliers(&footprint, hypothesis).collect();
     let circle = least_squares_circle(&on_hypothesis).filter(|c| radius_ok(c.radius))?;
     let on_circle: Vec<DVec2> = inliers(&footprint, circle).collect();
-    let (_, outside) = count_on_and_outside(&everything, circle);
     let max_gap = MAX_GAP_DEG.to_radians().min(MAX_GAP_M / circle.radius);
     let arc = longest_unbroken_arc(&on_circle, circle.centre, max_gap);
     let accepted = on_circle.len() >= MIN_INLIERS
         && on_circle.len() as f64 >= MIN_INLIER_SHARE * footprint.len() as f64
-        && outside as f64 <= MAX_OUTSIDE_SHARE * everything.len() as f64
+        && !too_many_outside(circle)
         && arc >= MIN_ARC_DEG.to_radians();
     accepted.then_some(circle)
 }
@@ -138,7 +138,7 @@ fn on_vertical_surfaces(points: &[DVec3]) -> Vec<DVec2> {
             (p.y / COLUMN_M).floor() as i64,
         )
     };
-    let mut heights: HashMap<(i64, i64), (f64, f64)> = HashMap::new();
+    let mut heights: FxHashMap<(i64, i64), (f64, f64)> = FxHashMap::default();
     for p in points {
         let range = heights.entry(column(p)).or_insert((p.z, p.z));
         *range = (range.0.min(p.z), range.1.max(p.z));
@@ -191,16 +191,13 @@ fn inliers(footprint: &[DVec2], circle: Circle) -> impl Iterator<Item = DVec2> +
         .filter(move |p| (p.distance(circle.centre) - circle.radius).abs() <= tolerance)
 }
 
-/// How many points lie on `circle` and how many outside it.
-fn count_on_and_outside(footprint: &[DVec2], circle: Circle) -> (usize, usize) {
-    let tolerance = tolerance(circle.radius);
-    footprint.iter().fold((0, 0), |(on, outside), p| {
-        let off = p.distance(circle.centre) - circle.radius;
-        (
-            on + usize::from(off.abs() <= tolerance),
-            outside + usize::from(off > tolerance),
-        )
-    })
+/// How many points lie outside `circle` (beyond its tolerance).
+fn outside(points: &[DVec2], circle: Circle) -> usize {
+    let reach = circle.radius + tolerance(circle.radius);
+    points
+        .iter()
+        .filter(|p| p.distance(circle.centre) > reach)
+        .count()
 }
 
 /// The circle through three points; `None` when they are (nearly) on one line.
