@@ -485,17 +485,23 @@ pub fn run_demo(options: &DemoOptions) -> Result<DemoReport> {
         )
         .map(|r: ListInstancesResponse| r.instances)
     };
-    // The window worker may still be fusing the last window: wait until the list settles.
+    // The window worker may still be fusing the last window, and the keyframes short of a
+    // window are mapped once the stream has been quiet for `flush_after_secs`: wait until the
+    // list stays the same for longer than that.
     let mut instances = list()?;
     let settle_deadline = Instant::now() + timeout;
+    let settle = Duration::try_from_secs_f64(config.window.flush_after_secs)
+        .unwrap_or_default()
+        .min(Duration::from_secs(5))
+        + Duration::from_millis(600);
     loop {
-        std::thread::sleep(Duration::from_millis(600));
+        std::thread::sleep(settle);
         let again = list()?;
         let settled = again.len() == instances.len()
             && again
                 .iter()
                 .zip(&instances)
-                .all(|(a, b)| a.point_count == b.point_count);
+                .all(|(a, b)| a.id == b.id && a.point_count == b.point_count && a.pose == b.pose);
         instances = again;
         if settled || Instant::now() >= settle_deadline {
             break;

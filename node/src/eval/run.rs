@@ -17,7 +17,7 @@ use rayon::prelude::*;
 use super::score::{ListedInstance, TruthObject, WindowRecord};
 use crate::config::Config;
 use crate::frame::SyncedFrame;
-use crate::graph::walls::published_box;
+use crate::graph::walls::object_list;
 use crate::graph::{GraphError, SceneMap};
 use crate::ingest::{DepthValidity, Ingest};
 use crate::node::Node;
@@ -295,15 +295,13 @@ pub fn replay_scene_with(
     })
 }
 
-/// The map's object list as the node publishes it (structure and small unsure pieces left out:
-/// `Vocabulary::is_listed`), each instance with its best name and its box.
+/// The map's object list as the node publishes it ([`object_list`]), each instance with its best
+/// name and its box.
 fn listed_instances(map: &SceneMap, models: &WindowModels) -> Vec<ListedInstance> {
     let vocabulary = models.vocabulary.as_ref();
-    let walls = std::cell::OnceCell::new();
-    map.instances
-        .iter()
-        .filter(|i| vocabulary.is_none_or(|v| v.is_listed(&i.prototype, i.gaussians.len())))
-        .map(|i| {
+    object_list(map, vocabulary, |i| i.oriented_box())
+        .into_iter()
+        .map(|(i, bbox)| {
             let (name, name_score) = vocabulary
                 .and_then(|v| v.hypotheses(&i.prototype, 1).into_iter().next())
                 .unwrap_or_default();
@@ -313,7 +311,7 @@ fn listed_instances(map: &SceneMap, models: &WindowModels) -> Vec<ListedInstance
                 name_score: f64::from(name_score),
                 observations: i.observations,
                 gaussians: i.gaussians.len(),
-                bbox: published_box(i.oriented_box(), &walls, map, vocabulary),
+                bbox,
             }
         })
         .collect()

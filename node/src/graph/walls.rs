@@ -25,7 +25,15 @@ pub const MIN_FACE_M: f64 = 0.2;
 pub const MAX_BACK_M: f64 = 1.0;
 /// The surface's bottom within this of the floor: furniture stands there, while a screen on a
 /// desk or a picture has no volume down to the wall.
-pub const ON_FLOOR_M: f64 = 0.15;
+pub const ON_FLOOR_M: f64 = 0.2;
+/// A horizontal surface this close to the floor is the floor.
+pub const FLOOR_PATCH_M: f64 = 0.05;
+/// A raised horizontal surface with its top between these heights above the floor is a
+/// worktop (table, desk, bed, counter), completed down to the floor; higher ones are shelves.
+pub const MIN_WORKTOP_M: f64 = 0.3;
+pub const MAX_WORKTOP_M: f64 = 1.2;
+/// A vertical surface whose wall points lie within this of its own plane is in the wall.
+const IN_PLANE_M: f64 = 0.03;
 /// How far beside the surface, and above it, wall points are read.
 const BESIDE_M: f64 = 0.6;
 /// Depth bins of the plane search.
@@ -60,6 +68,119 @@ impl Walls {
         Self { points, floor }
     }
 
+    /// Where a box thin along some axis (a surface seen from one side) belongs: `None` when it
+    /// is the room's own surface (a patch lying on the floor, or a vertical patch in the plane
+    /// of the wall around it: a visible face flush with a wall is that wall, as a face an
+    /// object turns to a wall is hidden); a horizontal surface raised to worktop height is
+    /// completed down to the floor (a table or bed top whose legs or sides the camera grouped
+    /// apart or never saw: furniture stands on the floor); a vertical surface standing on the
+    /// floor is completed back to the wall behind it ([`Walls::complete`]); otherwise `fitted`.
+    pub fn place(&self, fitted: OrientedBox) -> Option<OrientedBox> {
+        let Some(floor) = self.floor.map(f64::from) else {
+            return Some(fitted);
+        };
+        let size = fitted.size;
+        if !(fitted.centre.is_finite() && size.is_finite()) {
+            return Some(fitted);
+        }
+        let (bottom, top) = (
+            fitted.centre.z - size.z / 2.0,
+            fitted.centre.z + size.z / 2.0,
+        );
+        if size.z < SLAB_M {
+            if (fitted.centre.z - floor).abs() <= FLOOR_PATCH_M {
+                return None;
+            }
+            let raised = bottom - floor;
+            if size.x >= MIN_FACE_M
+                && size.y >= MIN_FACE_M
+                && (MIN_WORKTOP_M..=MAX_WORKTOP_M).contains(&(top - floor))
+                && raised > 0.0
+            {
+                let mut supported = fitted;
+                supported.size.z = top - floor;
+                supported.centre.z = (top + floor) / 2.0;
+                return Some(supported);
+            }
+            return Some(fitted);
+        }
+        // A face with a wall plane parallel behind it stands in front of that wall (its own
+        // plane may still hold structure: a fridge's door the semantic model calls wall).
+        if size.x.min(size.y) < SLAB_M
+            && self.wall_behind(&fitted).is_none()
+            && self.in_wall_plane(&fitted)
+        {
+            return None;
+        }
+        Some(self.complete(fitted))
+    }
+
+    /// Whether the vertical surface `fitted` (thin along one horizontal axis) lies in the plane
+    /// of the structure around it: the fullest plane among the wall points beside, above and
+    /// below it (within [`MAX_BACK_M`] either side) is its own.
+    fn in_wall_plane(&self, fitted: &OrientedBox) -> bool {
+        let Some(floor) = self.floor.map(f64::from) else {
+            return false;
+        };
+        let (bottom, top) = z_range(fitted);
+        let low = (floor + ON_FLOOR_M).max(bottom - BESIDE_M);
+        let (_, thin, depths) = self.depths_beside(fitted, (low, top + BESIDE_M));
+        let near: Vec<f64> = depths
+            .into_iter()
+            .map(f64::abs)
+            .filter(|d| *d <= MAX_BACK_M)
+            .collect();
+        let in_plane = near
+            .iter()
+            .filter(|d| **d <= thin / 2.0 + IN_PLANE_M)
+            .count();
+        in_plane >= MIN_PLANE_POINTS && (in_plane as f64) >= MIN_PLANE_SHARE * near.len() as f64
+    }
+
+    /// Signed distances from the vertical surface `fitted`'s mid-plane, along its normal, of the
+    /// structure points at heights within `heights` and beside it (within [`BESIDE_M`] of its
+    /// width), with the normal and the surface's thickness.
+    fn depths_beside(
+        &self,
+        fitted: &OrientedBox,
+        (low, high): (f64, f64),
+    ) -> (DVec2, f64, Vec<f64>) {
+        let (normal, along, thin, width) = face_frame(fitted);
+        let centre = fitted.centre.truncate();
+        let depths = self
+            .points
+            .iter()
+            .filter(|p| (low..=high).contains(&f64::from(p.z)))
+            .map(|p| p.truncate().as_dvec2() - centre)
+            .filter(|d| d.dot(along).abs() <= width / 2.0 + BESIDE_M)
+            .map(|d| d.dot(normal))
+            .collect();
+        (normal, thin, depths)
+    }
+
+    /// The nearest wall plane parallel to the vertical surface `fitted` (thin along one
+    /// horizontal axis) within [`MAX_BACK_M`] on either side of it, read from the structure
+    /// points beside and above it (the floor and points far to the side left out): the surface's
+    /// normal, and the side (+1 along the normal, -1 against it) and distance of the plane.
+    fn wall_behind(&self, fitted: &OrientedBox) -> Option<(DVec2, (f64, f64))> {
+        let (bottom, top) = z_range(fitted);
+        let (normal, thin, depths) =
+            self.depths_beside(fitted, (bottom + ON_FLOOR_M, top + BESIDE_M));
+        let off_plane = |d: f64| d > thin / 2.0 + BIN_M && d <= MAX_BACK_M;
+        let ahead: Vec<f64> = depths.iter().copied().filter(|&d| off_plane(d)).collect();
+        let behind: Vec<f64> = depths
+            .iter()
+            .map(|d| -d)
+            .filter(|&d| off_plane(d))
+            .collect();
+        // The nearer side that holds a wall plane.
+        [(1.0, plane_depth(&ahead)), (-1.0, plane_depth(&behind))]
+            .into_iter()
+            .filter_map(|(sign, depth)| depth.map(|d| (sign, d)))
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+            .map(|wall| (normal, wall))
+    }
+
     /// `fitted` completed back to the wall behind it when it is a vertical surface standing on
     /// the floor in front of a wall; otherwise `fitted` as it is.
     pub fn complete(&self, fitted: OrientedBox) -> OrientedBox {
@@ -68,51 +189,17 @@ impl Walls {
         };
         let size = fitted.size;
         let bottom = fitted.centre.z - size.z / 2.0;
-        let top = fitted.centre.z + size.z / 2.0;
         let on_floor = bottom <= f64::from(floor) + ON_FLOOR_M;
         if !(fitted.centre.is_finite() && is_surface(&fitted) && on_floor) {
             return fitted;
         }
-        let (c, s) = (fitted.yaw.cos(), fitted.yaw.sin());
-        let (x_axis, y_axis) = (DVec2::new(c, s), DVec2::new(-s, c));
-        // The thin axis is the surface's normal, the other its width.
-        let thin_along_x = size.x < SLAB_M;
-        let (normal, along, thin, width) = if thin_along_x {
-            (x_axis, y_axis, size.x, size.y)
-        } else {
-            (y_axis, x_axis, size.y, size.x)
-        };
-        let centre = fitted.centre.truncate();
-        // Signed distances from the surface's mid-plane of the structure points beside and above
-        // it (the floor and points far to the side left out).
-        let mut ahead = Vec::new();
-        let mut behind = Vec::new();
-        for p in &self.points {
-            let z = f64::from(p.z);
-            if z < bottom + ON_FLOOR_M || z > top + BESIDE_M {
-                continue;
-            }
-            let d = p.truncate().as_dvec2() - centre;
-            if d.dot(along).abs() > width / 2.0 + BESIDE_M {
-                continue;
-            }
-            let depth = d.dot(normal);
-            if depth.abs() > thin / 2.0 + BIN_M && depth.abs() <= MAX_BACK_M {
-                if depth > 0.0 {
-                    ahead.push(depth);
-                } else {
-                    behind.push(-depth);
-                }
-            }
-        }
-        // The nearer side that holds a wall plane; the object fills the space back to it.
-        let wall = [(1.0, plane_depth(&ahead)), (-1.0, plane_depth(&behind))]
-            .into_iter()
-            .filter_map(|(sign, depth)| depth.map(|d| (sign, d)))
-            .min_by(|a, b| a.1.total_cmp(&b.1));
-        let Some((sign, depth)) = wall else {
+        // The object fills the space back to the nearer wall plane.
+        let Some((normal, (sign, depth))) = self.wall_behind(&fitted) else {
             return fitted;
         };
+        let thin = size.x.min(size.y);
+        let thin_along_x = size.x <= size.y;
+        let centre = fitted.centre.truncate();
         // Front face at -thin/2 (away from the wall), back at the wall: along `sign * normal`.
         let extent = depth + thin / 2.0;
         let shift = sign * (depth - thin / 2.0) / 2.0;
@@ -128,8 +215,26 @@ impl Walls {
     }
 }
 
+/// A box's bottom and top heights.
+fn z_range(b: &OrientedBox) -> (f64, f64) {
+    (b.centre.z - b.size.z / 2.0, b.centre.z + b.size.z / 2.0)
+}
+
+/// A box's frame on the ground as a vertical surface: its normal (the thinner horizontal axis),
+/// the axis along it, and its thickness and width.
+fn face_frame(fitted: &OrientedBox) -> (DVec2, DVec2, f64, f64) {
+    let (c, s) = (fitted.yaw.cos(), fitted.yaw.sin());
+    let (x_axis, y_axis) = (DVec2::new(c, s), DVec2::new(-s, c));
+    let size = fitted.size;
+    if size.x <= size.y {
+        (x_axis, y_axis, size.x, size.y)
+    } else {
+        (y_axis, x_axis, size.y, size.x)
+    }
+}
+
 /// Whether `fitted` is a vertical surface seen from one side (thin along one horizontal axis):
-/// the only boxes [`Walls::complete`] may change, so callers build [`Walls`] only for them.
+/// the only boxes [`Walls::complete`] may change.
 pub fn is_surface(fitted: &OrientedBox) -> bool {
     let s = fitted.size;
     s.is_finite()
@@ -137,16 +242,24 @@ pub fn is_surface(fitted: &OrientedBox) -> bool {
         && ((s.x < SLAB_M && s.y >= MIN_FACE_M) || (s.y < SLAB_M && s.x >= MIN_FACE_M))
 }
 
-/// The box an instance publishes: `fitted`, or for a surface seen from one side the box back to
-/// the wall behind it ([`Walls::complete`]; `walls` is built from `map` at the first surface).
+/// Whether `fitted` is thin along some axis: a surface seen from one side, the only boxes
+/// [`Walls::place`] may change or call structure, so callers build [`Walls`] only for them.
+pub fn is_thin(fitted: &OrientedBox) -> bool {
+    let s = fitted.size;
+    s.is_finite() && s.min_element() < SLAB_M
+}
+
+/// The box an instance publishes: `fitted`, completed when it is a surface seen from one side
+/// ([`Walls::place`]; `walls` is built from `map` at the first thin box), or `None` when it is
+/// a patch of the room itself (floor, or a wall's plane) and no object.
 pub fn published_box(
     fitted: OrientedBox,
     walls: &std::cell::OnceCell<Walls>,
     map: &SceneMap,
     vocabulary: Option<&Vocabulary>,
-) -> OrientedBox {
-    if !is_surface(&fitted) {
-        return fitted;
+) -> Option<OrientedBox> {
+    if !is_thin(&fitted) {
+        return Some(fitted);
     }
     walls
         .get_or_init(|| {
@@ -154,7 +267,24 @@ pub fn published_box(
                 vocabulary.is_some_and(|v| v.is_structure(&i.prototype))
             })
         })
-        .complete(fitted)
+        .place(fitted)
+}
+
+/// The map's object list, as the node publishes it, the evaluation scores it and queries pick
+/// from it: instances the vocabulary lists (structure and small unsure pieces left out:
+/// [`Vocabulary::is_listed`]), each with its published box ([`published_box`] of the box `fit`
+/// gives it), less those whose box is a patch of the room itself.
+pub fn object_list<'a>(
+    map: &'a SceneMap,
+    vocabulary: Option<&Vocabulary>,
+    mut fit: impl FnMut(&Instance) -> OrientedBox,
+) -> Vec<(&'a Instance, OrientedBox)> {
+    let walls = std::cell::OnceCell::new();
+    map.instances
+        .iter()
+        .filter(|i| vocabulary.is_none_or(|v| v.is_listed(&i.prototype, i.gaussians.len())))
+        .filter_map(|i| published_box(fit(i), &walls, map, vocabulary).map(|b| (i, b)))
+        .collect()
 }
 
 /// Depth of a plane parallel to the surface among `depths` (one side's structure points): the
@@ -193,20 +323,29 @@ fn plane_depth(depths: &[f64]) -> Option<f64> {
 mod tests {
     use super::*;
 
-    /// Points on the rectangle x in [x0, x1], y = y, z in [z0, z1] (a wall patch or a cabinet's
-    /// front), every 4 cm.
-    fn wall_y(y: f32, (x0, x1): (f32, f32), (z0, z1): (f32, f32)) -> Vec<Vec3> {
+    /// Points every 4 cm over the rectangle [a0, a1] × [b0, b1], placed by `at`.
+    fn grid(
+        (a0, a1): (f32, f32),
+        (b0, b1): (f32, f32),
+        at: impl Fn(f32, f32) -> Vec3,
+    ) -> Vec<Vec3> {
         let mut points = Vec::new();
-        let mut x = x0;
-        while x <= x1 {
-            let mut z = z0;
-            while z <= z1 {
-                points.push(Vec3::new(x, y, z));
-                z += 0.04;
+        let mut a = a0;
+        while a <= a1 {
+            let mut b = b0;
+            while b <= b1 {
+                points.push(at(a, b));
+                b += 0.04;
             }
-            x += 0.04;
+            a += 0.04;
         }
         points
+    }
+
+    /// Points on the rectangle x in [x0, x1], y = y, z in [z0, z1] (a wall patch or a cabinet's
+    /// front), every 4 cm.
+    fn wall_y(y: f32, x: (f32, f32), z: (f32, f32)) -> Vec<Vec3> {
+        grid(x, z, |x, z| Vec3::new(x, y, z))
     }
 
     fn floor() -> Vec<Vec3> {
@@ -281,11 +420,80 @@ mod tests {
         assert_eq!(walls.complete(solid), solid);
     }
 
+    /// Points on the horizontal rectangle x in [x0, x1], y in [y0, y1] at height z, every 4 cm.
+    fn top(z: f32, x: (f32, f32), y: (f32, f32)) -> Vec<Vec3> {
+        grid(x, y, |x, y| Vec3::new(x, y, z))
+    }
+
+    #[test]
+    fn a_table_top_seen_without_its_legs_stands_on_the_floor() {
+        let walls = room_with_a_hidden_wall();
+        let fitted = OrientedBox::fit(&top(0.75, (1.0, 2.2), (1.0, 1.8)), 0.0);
+        assert!(fitted.size.z < 0.01, "a surface: {fitted:?}");
+        let placed = walls.place(fitted).expect("an object");
+        let (lo, hi) = (
+            placed.centre - placed.size / 2.0,
+            placed.centre + placed.size / 2.0,
+        );
+        assert!(
+            lo.z.abs() < 0.02 && (hi.z - 0.75).abs() < 0.02,
+            "{placed:?}"
+        );
+        assert!(
+            (placed.footprint_area() - fitted.footprint_area()).abs() < 1e-9,
+            "the footprint kept: {placed:?}"
+        );
+        // A shelf board above worktop height and a board a few centimetres up (a rug, a mat)
+        // stay what was seen.
+        for z in [1.6, 0.15] {
+            let fitted = OrientedBox::fit(&top(z, (1.0, 2.2), (1.0, 1.8)), 0.0);
+            assert_eq!(walls.place(fitted), Some(fitted), "at {z} m");
+        }
+    }
+
+    #[test]
+    fn patches_of_the_floor_and_of_a_wall_s_plane_are_the_room_not_objects() {
+        let walls = room_with_a_hidden_wall();
+        let on_floor = OrientedBox::fit(&top(0.01, (1.0, 2.2), (1.0, 1.8)), 0.0);
+        assert_eq!(walls.place(on_floor), None);
+        // A piece of the wall at y = 0 (beside the cabinet), named as an object.
+        let wall_piece = OrientedBox::fit(&wall_y(0.005, (3.2, 3.8), (0.8, 1.6)), 0.0);
+        assert!(is_thin(&wall_piece));
+        assert_eq!(walls.place(wall_piece), None);
+        // The cabinet's front half a metre out is an object, completed back to the wall.
+        let front = front_face(0.5);
+        assert_eq!(walls.place(front), Some(walls.complete(front)));
+        assert_ne!(walls.complete(front), front);
+        // A fridge half a metre out whose upper door the semantic model calls wall: its plane
+        // holds structure, but a wall stands parallel behind it, so it is furniture.
+        // The wall is seen only in a strip beside it, so the door dominates its surroundings.
+        let mut points = floor();
+        points.extend(wall_y(0.0, (1.6, 2.0), (0.0, 2.6)));
+        points.extend(wall_y(0.5, (2.0, 2.8), (1.0, 1.8)));
+        let door_as_wall = Walls::new(points);
+        let lower_door = OrientedBox::fit(&wall_y(0.5, (2.0, 2.8), (0.0, 0.96)), 0.0);
+        let placed = door_as_wall.place(lower_door).expect("furniture");
+        assert!(
+            placed.size.x.min(placed.size.y) > 0.45,
+            "completed: {placed:?}"
+        );
+        // A box with depth is never the room's, even on the floor against the wall.
+        let mut solid = wall_y(0.02, (3.2, 3.8), (0.0, 0.8));
+        solid.extend(wall_y(0.4, (3.2, 3.8), (0.0, 0.8)));
+        let solid = OrientedBox::fit(&solid, 0.0);
+        assert!(!is_thin(&solid));
+        assert_eq!(walls.place(solid), Some(solid));
+    }
+
     #[test]
     fn without_structure_or_with_degenerate_input_boxes_stay_finite_and_unchanged() {
         let empty = Walls::new(Vec::new());
         let fitted = front_face(0.5);
         assert_eq!(empty.complete(fitted), fitted);
+        // Without a floor nothing is known of the room: every box is an object, as fitted.
+        let table_top = OrientedBox::fit(&top(0.75, (1.0, 2.2), (1.0, 1.8)), 0.0);
+        assert_eq!(empty.place(table_top), Some(table_top));
+        assert_eq!(empty.place(fitted), Some(fitted));
         let walls = Walls::new(vec![Vec3::NAN, Vec3::splat(f32::INFINITY)]);
         assert_eq!(walls.complete(fitted), fitted);
         let walls = room_with_a_hidden_wall();
@@ -295,6 +503,11 @@ mod tests {
             // A surface of zero width: no face to complete.
             OrientedBox::fit(&wall_y(0.5, (2.0, 2.0), (0.0, 1.8)), 0.0),
         ] {
+            let placed = walls.place(degenerate);
+            assert!(
+                placed.is_none_or(|b| b.centre.is_finite() && b.size.is_finite()),
+                "{degenerate:?} -> {placed:?}"
+            );
             let completed = walls.complete(degenerate);
             assert!(
                 completed == degenerate

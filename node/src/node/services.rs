@@ -19,7 +19,7 @@ use super::error::Result;
 use super::queue::InputQueue;
 use crate::config::Config;
 use crate::frame::Keyframe;
-use crate::graph::walls::published_box;
+use crate::graph::walls::object_list;
 use crate::graph::{persist, SceneMap};
 use crate::group::semantics::Vocabulary;
 use crate::ingest::{Ingest, Route};
@@ -128,43 +128,40 @@ pub fn instance_messages_cached(
     cache: &mut BoxCache,
 ) -> Vec<Instance> {
     let mut fitted = HashMap::new();
-    let walls = std::cell::OnceCell::new();
-    let messages = map
-        .instances
-        .iter()
-        .filter(|i| vocabulary.is_none_or(|v| v.is_listed(&i.prototype, i.gaussians.len())))
-        .map(|i| {
-            let print = fingerprint(&i.gaussians);
-            let b = match cache.0.get(&i.id) {
-                Some((seen, b)) if *seen == print => *b,
-                _ => i.oriented_box(),
-            };
-            fitted.insert(i.id.clone(), (print, b));
-            // The structure changes with every window: completion is redone, fitting is cached.
-            let b = published_box(b, &walls, map, vocabulary);
-            Instance {
-                id: i.id.clone(),
-                hypotheses: vocabulary
-                    .map(|v| v.hypotheses(&i.prototype, hypotheses))
-                    .unwrap_or_default()
-                    .into_iter()
-                    .map(|(class_id, score)| ObjectHypothesis {
-                        class_id,
-                        score: f64::from(score),
-                    })
-                    .collect(),
-                pose: refer::response::box_pose(&b),
-                size: groupforward_msgs::geometry_msgs::Vector3 {
-                    x: b.size.x,
-                    y: b.size.y,
-                    z: b.size.z,
-                },
-                point_count: i.gaussians.len() as u32,
-                confidence: i.confidence,
-                first_seen: time_of(i.first_seen_nanos),
-                last_seen: time_of(i.last_seen_nanos),
-                ..Default::default()
-            }
+    // The structure changes with every window: completion is redone, fitting is cached.
+    let listed = object_list(map, vocabulary, |i| {
+        let print = fingerprint(&i.gaussians);
+        let b = match cache.0.get(&i.id) {
+            Some((seen, b)) if *seen == print => *b,
+            _ => i.oriented_box(),
+        };
+        fitted.insert(i.id.clone(), (print, b));
+        b
+    });
+    let messages = listed
+        .into_iter()
+        .map(|(i, b)| Instance {
+            id: i.id.clone(),
+            hypotheses: vocabulary
+                .map(|v| v.hypotheses(&i.prototype, hypotheses))
+                .unwrap_or_default()
+                .into_iter()
+                .map(|(class_id, score)| ObjectHypothesis {
+                    class_id,
+                    score: f64::from(score),
+                })
+                .collect(),
+            pose: refer::response::box_pose(&b),
+            size: groupforward_msgs::geometry_msgs::Vector3 {
+                x: b.size.x,
+                y: b.size.y,
+                z: b.size.z,
+            },
+            point_count: i.gaussians.len() as u32,
+            confidence: i.confidence,
+            first_seen: time_of(i.first_seen_nanos),
+            last_seen: time_of(i.last_seen_nanos),
+            ..Default::default()
         })
         .collect();
     cache.0 = fitted;

@@ -10,6 +10,7 @@ use std::sync::Arc;
 use glam::DVec3;
 
 use crate::frame::Keyframe;
+use crate::graph::walls::object_list;
 use crate::graph::{GraphError, SceneGraph, SceneMap};
 use crate::group::semantics::Vocabulary;
 use crate::recon::boxes::OrientedBox;
@@ -99,6 +100,15 @@ impl ReferScene {
                 (r.depth, labels)
             })
             .unzip();
+        let listed: HashMap<String, OrientedBox> = object_list(&map, vocabulary, |i| {
+            boxes
+                .get(&i.id)
+                .copied()
+                .unwrap_or_else(|| i.oriented_box())
+        })
+        .into_iter()
+        .map(|(i, b)| (i.id.clone(), b))
+        .collect();
         let mut nodes = Vec::new();
         for (instance, node) in map.instances.iter().zip(&graph.nodes) {
             let names = vocabulary
@@ -114,15 +124,9 @@ impl ReferScene {
                 _ => String::new(),
             };
             // What the object list leaves out (structure, small unsure pieces) is no candidate.
-            if vocabulary
-                .is_some_and(|v| !v.is_listed(&instance.prototype, instance.gaussians.len()))
-            {
+            let Some(&bbox) = listed.get(&instance.id) else {
                 continue;
-            }
-            let bbox = boxes
-                .get(&instance.id)
-                .copied()
-                .unwrap_or_else(|| instance.oriented_box());
+            };
             let (lo, hi) = box_bounds(&bbox);
             let n = instance.gaussians.len().max(1) as f32;
             let color = instance
