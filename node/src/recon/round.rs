@@ -441,6 +441,44 @@ mod tests {
     }
 
     #[test]
+    fn a_round_front_before_larger_flat_faces_inside_its_circle_keeps_its_fitted_box() {
+        // A toilet's bowl seen from the front before its tank, a desk's rounded end before its
+        // panels: flat vertical faces inside the arc's circle (none outside it, so only the
+        // share of points on the circle tells them from a bin seen on one side).
+        let centre = DVec2::new(0.5, 0.5);
+        let radius = 0.25;
+        let eye = DVec2::new(0.5, 3.0);
+        let front = seen_cylinder(centre, radius, 0.4, eye, false);
+        let arc: Vec<Vec3> = front
+            .iter()
+            .copied()
+            .filter(|p| f64::from(p.y) > centre.y)
+            .collect();
+        let alone = fit_object_box(&arc, 0.02);
+        assert!(
+            alone.volume() > 1.2 * OrientedBox::fit(&arc, 0.02).volume(),
+            "the arc alone is completed: {alone:?}"
+        );
+        // Two flat faces across the circle, behind the arc, with more points than it has.
+        let mut with_faces = arc.clone();
+        for y in [0.35, 0.45] {
+            for k in 0..=30 {
+                let x = centre.x - 0.18 + 0.36 * k as f64 / 30.0;
+                for level in 0..8 {
+                    let z = 0.4 * level as f64 / 7.0;
+                    with_faces.push(Vec3::new(x as f32, y as f32, z as f32));
+                }
+            }
+        }
+        let on_arc = arc.len() as f64 / with_faces.len() as f64;
+        assert!(on_arc < 0.5, "{on_arc}");
+        assert_eq!(
+            fit_object_box(&with_faces, 0.02),
+            OrientedBox::fit(&with_faces, 0.02)
+        );
+    }
+
+    #[test]
     fn degenerate_sets_give_the_fitted_box_and_stay_finite() {
         let p = Vec3::new(1.0, 2.0, 0.5);
         let line: Vec<Vec3> = (0..30)
