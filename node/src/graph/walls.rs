@@ -83,10 +83,7 @@ impl Walls {
         if !(fitted.centre.is_finite() && size.is_finite()) {
             return Some(fitted);
         }
-        let (bottom, top) = (
-            fitted.centre.z - size.z / 2.0,
-            fitted.centre.z + size.z / 2.0,
-        );
+        let (bottom, top) = z_range(&fitted);
         if size.z < SLAB_M {
             if (fitted.centre.z - floor).abs() <= FLOOR_PATCH_M {
                 return None;
@@ -104,15 +101,21 @@ impl Walls {
             }
             return Some(fitted);
         }
+        if size.x.min(size.y) >= SLAB_M {
+            return Some(fitted);
+        }
         // A face with a wall plane parallel behind it stands in front of that wall (its own
-        // plane may still hold structure: a fridge's door the semantic model calls wall).
-        if size.x.min(size.y) < SLAB_M
-            && self.wall_behind(&fitted).is_none()
-            && self.in_wall_plane(&fitted)
-        {
+        // plane may still hold structure: a fridge's door the semantic model calls wall). The
+        // plane is searched once, for both questions.
+        let wall = self.wall_behind(&fitted);
+        if wall.is_none() && self.in_wall_plane(&fitted) {
             return None;
         }
-        Some(self.complete(fitted))
+        Some(if self.completes(&fitted) {
+            complete_to_wall(fitted, wall)
+        } else {
+            fitted
+        })
     }
 
     /// Whether the vertical surface `fitted` (thin along one horizontal axis) lies in the plane
@@ -184,35 +187,44 @@ impl Walls {
     /// `fitted` completed back to the wall behind it when it is a vertical surface standing on
     /// the floor in front of a wall; otherwise `fitted` as it is.
     pub fn complete(&self, fitted: OrientedBox) -> OrientedBox {
-        let Some(floor) = self.floor else {
-            return fitted;
-        };
-        let size = fitted.size;
-        let bottom = fitted.centre.z - size.z / 2.0;
-        let on_floor = bottom <= f64::from(floor) + ON_FLOOR_M;
-        if !(fitted.centre.is_finite() && is_surface(&fitted) && on_floor) {
+        if !self.completes(&fitted) {
             return fitted;
         }
-        // The object fills the space back to the nearer wall plane.
-        let Some((normal, (sign, depth))) = self.wall_behind(&fitted) else {
-            return fitted;
-        };
-        let thin = size.x.min(size.y);
-        let thin_along_x = size.x <= size.y;
-        let centre = fitted.centre.truncate();
-        // Front face at -thin/2 (away from the wall), back at the wall: along `sign * normal`.
-        let extent = depth + thin / 2.0;
-        let shift = sign * (depth - thin / 2.0) / 2.0;
-        let moved = centre + normal * shift;
-        let mut completed = fitted;
-        completed.centre = DVec3::new(moved.x, moved.y, fitted.centre.z);
-        if thin_along_x {
-            completed.size.x = extent;
-        } else {
-            completed.size.y = extent;
-        }
-        completed
+        let wall = self.wall_behind(&fitted);
+        complete_to_wall(fitted, wall)
     }
+
+    /// Whether [`Walls::complete`] may change `fitted`: a vertical surface standing on the floor.
+    fn completes(&self, fitted: &OrientedBox) -> bool {
+        self.floor.is_some_and(|floor| {
+            let on_floor = z_range(fitted).0 <= f64::from(floor) + ON_FLOOR_M;
+            fitted.centre.is_finite() && is_surface(fitted) && on_floor
+        })
+    }
+}
+
+/// `fitted` extended back to `wall` ([`Walls::wall_behind`] of it), or as it is without one.
+fn complete_to_wall(fitted: OrientedBox, wall: Option<(DVec2, (f64, f64))>) -> OrientedBox {
+    // The object fills the space back to the nearer wall plane.
+    let Some((normal, (sign, depth))) = wall else {
+        return fitted;
+    };
+    let size = fitted.size;
+    let thin = size.x.min(size.y);
+    let thin_along_x = size.x <= size.y;
+    let centre = fitted.centre.truncate();
+    // Front face at -thin/2 (away from the wall), back at the wall: along `sign * normal`.
+    let extent = depth + thin / 2.0;
+    let shift = sign * (depth - thin / 2.0) / 2.0;
+    let moved = centre + normal * shift;
+    let mut completed = fitted;
+    completed.centre = DVec3::new(moved.x, moved.y, fitted.centre.z);
+    if thin_along_x {
+        completed.size.x = extent;
+    } else {
+        completed.size.y = extent;
+    }
+    completed
 }
 
 /// A box's bottom and top heights.
