@@ -290,6 +290,8 @@ def test_replay_of_a_rosbags_bag_is_decoded_by_the_node(node, ts, binary, tmp_pa
     frames = 40
     write_bag(ts, bag, frames)
     # At 4x the recorded rate (20 Hz frames): a realistic stream, so the bounded queue drops nothing.
+    # Windows the model is still busy for are shed by design (window_dropped_busy) and how many
+    # depends on the machine's speed: this test is about decoding, so every message must pass.
     replay = subprocess.run([str(binary), 'replay', str(bag), '--rate', '4', '--delay-secs', '1',
                              '--connect', node.endpoint], capture_output=True, text=True, timeout=60)
     assert replay.returncode == 0, replay.stderr
@@ -299,7 +301,8 @@ def test_replay_of_a_rosbags_bag_is_decoded_by_the_node(node, ts, binary, tmp_pa
     assert camera['frames_synced'] == frames
     assert camera['frames_rejected'] == 0
     status = node.status()
-    assert status['rejections'] == []
+    rejected = [r for r in status['rejections'] if r['reason'] != 'window_dropped_busy']
+    assert rejected == []
     assert status['tf_received'] == frames + 1
 
 
