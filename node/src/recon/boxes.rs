@@ -14,7 +14,13 @@ pub struct OrientedBox {
 }
 
 /// Share of the points left out at each end of every axis when a box is fitted, so that a few
-/// stray points (flying pixels, a wrongly assigned Gaussian) do not set the extent.
+/// stray points (flying pixels, a wrongly assigned Gaussian) do not set the extent. A map keeps
+/// one point per 5 cm voxel, so depth noise's thin outer voxels count as much as a surface's;
+/// trimming the footprint by the lifted pixels each point stands for instead was measured on
+/// benchmark 0-9 with `--effects realistic`: recall@0.25 / @0.5 / precision 70.1 / 37.7 / 75.0%
+/// against 72.7 / 37.7 / 77.8% (by √pixels 71.4 / 36.4 / 76.4%). Chairs, sinks and toilets got
+/// tighter, but flanks seen at a grazing angle and thin parts (few pixels per voxel, yet real)
+/// went with the noise: desks, lamps, plants and bins shrank below IoU 0.5.
 pub const DEFAULT_TRIM: f64 = 0.02;
 
 impl OrientedBox {
