@@ -119,10 +119,14 @@ impl OrientedBox {
         fitted.canonical()
     }
 
-    /// How close `points` lie to this box's vertical sides: Σ 1 / max(d, 1 cm) over the points,
-    /// d the distance to the nearest side in the footprint (points outside count as on it).
+    /// How close `points` lie to this box's vertical sides: Σ 1 / max(d, 4 cm) over the points,
+    /// d the distance to the nearest side in the footprint (points outside count as on it). The
+    /// floor is about a depth camera's noise at 2.5 m (σ 6 mm × z²): nearer than that, which
+    /// side a point lies closest to is the noise's choice. Against a 1 cm floor, recall@0.5 on
+    /// benchmark 0-9 / 10-29 with `--effects realistic` went 37.7 -> 39.0% / 42.3 -> 44.0%, and
+    /// 64.6 -> 65.4% on clean 0-29; recall@0.25 and precision did not change.
     fn closeness(&self, points: &[DVec3]) -> f64 {
-        const FLOOR: f64 = 0.01;
+        const FLOOR: f64 = 0.04;
         let (c, s) = (self.yaw.cos(), self.yaw.sin());
         let half = self.size.truncate() / 2.0;
         points
@@ -375,6 +379,59 @@ mod tests {
         }
         let fitted = OrientedBox::fit(&points, 0.0);
         assert!(fitted.iou(&truth) > 0.9, "{fitted:?}");
+    }
+
+    #[test]
+    fn a_small_square_object_seen_through_depth_noise_keeps_its_yaw() {
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, StandardNormal};
+        // A 0.45 m square box (a chair's seat, a toilet) turned by 0.3 rad, its four sides seen
+        // through depth noise of a few centimetres across each face: the yaw that puts the most
+        // points within a centimetre of a side would follow the noise, not the faces.
+        let truth = OrientedBox {
+            centre: DVec3::new(2.0, 1.0, 0.25),
+            size: DVec3::new(0.45, 0.45, 0.5),
+            yaw: 0.3,
+        };
+        let (c, s) = (truth.yaw.cos(), truth.yaw.sin());
+        let mut worst = f64::INFINITY;
+        let mut worst_yaw: f64 = 0.0;
+        for seed in 0..8 {
+            let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+            let mut noise = || {
+                let unit: f64 = StandardNormal.sample(&mut rng);
+                0.03 * unit
+            };
+            let mut points = Vec::new();
+            for k in 0..10 {
+                let z = 0.05 * k as f64;
+                for i in 0..=15 {
+                    let a = -0.225 + 0.03 * i as f64;
+                    for (u, v) in [
+                        (a, -0.225 + noise()),
+                        (a, 0.225 + noise()),
+                        (-0.225 + noise(), a),
+                        (0.225 + noise(), a),
+                    ] {
+                        let x = truth.centre.x + c * u - s * v;
+                        let y = truth.centre.y + s * u + c * v;
+                        points.push(Vec3::new(x as f32, y as f32, z as f32));
+                    }
+                }
+            }
+            let fitted = OrientedBox::fit(&points, DEFAULT_TRIM);
+            let quarter = std::f64::consts::FRAC_PI_2;
+            let off = (fitted.yaw - truth.yaw).rem_euclid(quarter);
+            worst_yaw = worst_yaw.max(off.min(quarter - off));
+            worst = worst.min(fitted.iou(&truth));
+        }
+        // Measured: 2.8° at worst over the seeds (10.4° with a 1 cm floor).
+        assert!(
+            worst_yaw.to_degrees() < 6.0,
+            "worst yaw error over the seeds {:.1}°",
+            worst_yaw.to_degrees()
+        );
+        assert!(worst > 0.6, "worst IoU over the seeds {worst:.3}");
     }
 
     #[test]
