@@ -212,8 +212,22 @@ pub fn eval_map(
     let summary = total.summary();
     let scene_counts: Vec<Counts> = per_scene.iter().map(|(_, c, _)| *c).collect();
     let spread = intervals(&scene_counts);
-    // Scenes are scored in the order of `files`, the order `before` was paired in.
-    let difference = before.map(|before| paired_differences(&scene_counts, &before));
+    // Scenes are scored in the order of `files`, the order `before` was paired in. `before` was
+    // read back from its summary.json, whose float parsing is not always correctly rounded (off
+    // by an ulp for some sums): this run's counts go through the same text, so two identical runs
+    // differ by exactly zero.
+    let difference = before.map(|before| {
+        let as_recorded: Vec<Counts> = scene_counts
+            .iter()
+            .map(|c| {
+                serde_json::to_string(c)
+                    .ok()
+                    .and_then(|text| serde_json::from_str(&text).ok())
+                    .unwrap_or(*c)
+            })
+            .collect();
+        paired_differences(&as_recorded, &before)
+    });
     let mut csv = csv_writer(&out.join("objects.csv"))?;
     writeln!(
         csv,
