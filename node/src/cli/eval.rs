@@ -212,21 +212,10 @@ pub fn eval_map(
     let summary = total.summary();
     let scene_counts: Vec<Counts> = per_scene.iter().map(|(_, c, _)| *c).collect();
     let spread = intervals(&scene_counts);
-    // Scenes are scored in the order of `files`, the order `before` was paired in. `before` was
-    // read back from its summary.json, whose float parsing is not always correctly rounded (off
-    // by an ulp for some sums): this run's counts go through the same text, so two identical runs
-    // differ by exactly zero.
+    // Scenes are scored in the order of `files`, the order `before` was paired in.
     let difference = before.map(|before| {
-        let as_recorded: Vec<Counts> = scene_counts
-            .iter()
-            .map(|c| {
-                serde_json::to_string(c)
-                    .ok()
-                    .and_then(|text| serde_json::from_str(&text).ok())
-                    .unwrap_or(*c)
-            })
-            .collect();
-        paired_differences(&as_recorded, &before)
+        let recorded: Vec<Counts> = scene_counts.iter().map(as_recorded).collect();
+        paired_differences(&recorded, &before)
     });
     let mut csv = csv_writer(&out.join("objects.csv"))?;
     writeln!(
@@ -379,6 +368,16 @@ fn csv_writer(path: &Path) -> Result<std::io::BufWriter<std::fs::File>> {
     Ok(std::io::BufWriter::new(
         std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?,
     ))
+}
+
+/// `counts` as [`read_scene_counts`] would read them back from `summary.json`: serde_json's float
+/// parsing is not always correctly rounded (an ulp off for some sums), so a run paired with an
+/// earlier one compares like with like and two identical runs differ by exactly zero.
+fn as_recorded(counts: &Counts) -> Counts {
+    serde_json::to_string(counts)
+        .ok()
+        .and_then(|text| serde_json::from_str(&text).ok())
+        .unwrap_or(*counts)
 }
 
 /// Per scene, its counts, from an earlier run's `summary.json`.

@@ -350,6 +350,16 @@ mod tests {
         assert!(untrimmed.size.max_element() > 2.0);
     }
 
+    /// The world point at `(u, v)` along `truth`'s footprint axes from its centre, at height `z`.
+    fn on_box_axes(truth: &OrientedBox, u: f64, v: f64, z: f64) -> Vec3 {
+        let (c, s) = (truth.yaw.cos(), truth.yaw.sin());
+        Vec3::new(
+            (truth.centre.x + c * u - s * v) as f32,
+            (truth.centre.y + s * u + c * v) as f32,
+            z as f32,
+        )
+    }
+
     #[test]
     fn two_visible_faces_of_a_cabinet_give_the_cabinets_box() {
         // A 0.6 x 0.55 x 1.8 m cabinet turned by 0.5 rad, seen from its front and one side: only
@@ -359,14 +369,7 @@ mod tests {
             size: DVec3::new(0.6, 0.55, 1.8),
             yaw: 0.5,
         };
-        let (c, s) = (truth.yaw.cos(), truth.yaw.sin());
-        let world = |u: f64, v: f64, z: f64| {
-            Vec3::new(
-                (truth.centre.x + c * u - s * v) as f32,
-                (truth.centre.y + s * u + c * v) as f32,
-                z as f32,
-            )
-        };
+        let world = |u: f64, v: f64, z: f64| on_box_axes(&truth, u, v, z);
         let mut points = Vec::new();
         for k in 0..=36 {
             let z = k as f64 * 0.05;
@@ -393,7 +396,6 @@ mod tests {
             size: DVec3::new(0.45, 0.45, 0.5),
             yaw: 0.3,
         };
-        let (c, s) = (truth.yaw.cos(), truth.yaw.sin());
         let mut worst = f64::INFINITY;
         let mut worst_yaw: f64 = 0.0;
         for seed in 0..8 {
@@ -413,9 +415,7 @@ mod tests {
                         (-0.225 + noise(), a),
                         (0.225 + noise(), a),
                     ] {
-                        let x = truth.centre.x + c * u - s * v;
-                        let y = truth.centre.y + s * u + c * v;
-                        points.push(Vec3::new(x as f32, y as f32, z as f32));
+                        points.push(on_box_axes(&truth, u, v, z));
                     }
                 }
             }
