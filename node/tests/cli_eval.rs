@@ -149,6 +149,7 @@ fn eval_all_runs_every_evaluation_on_the_same_scenes_and_gathers_their_figures()
 #[test]
 fn eval_map_against_an_earlier_run_gives_the_paired_difference_and_refuses_other_scenes() {
     let (first, _) = eval(&["map"]);
+    the_objects_not_found_are_traced_to_a_stage(first.path());
     let against = first.path().to_str().expect("a UTF-8 path");
     // The same scene again: a run is deterministic, so every difference is zero.
     let (second, run) = eval(&["map", "--against", against]);
@@ -180,6 +181,46 @@ fn eval_map_against_an_earlier_run_gives_the_paired_difference_and_refuses_other
         "{}",
         String::from_utf8_lossy(&refused.stderr)
     );
+}
+
+/// Every scored object that `eval map` did not find names the stage that lost it, and the summary
+/// counts them; the shares of its sighted pixels add up to one.
+fn the_objects_not_found_are_traced_to_a_stage(out: &std::path::Path) {
+    let objects = std::fs::read_to_string(out.join("objects.csv")).expect("objects.csv");
+    let mut lines = objects.lines();
+    let header: Vec<&str> = lines.next().expect("a header").split(',').collect();
+    let column = |name: &str| header.iter().position(|c| *c == name).expect(name);
+    let (mut lost, mut sighted) = (0u64, 0);
+    for line in lines {
+        let row: Vec<&str> = line.split(',').collect();
+        let (outcome, lost_at) = (row[column("outcome")], row[column("lost_at")]);
+        match outcome {
+            "found" | "not_seen" => assert_eq!(lost_at, "", "{line}"),
+            _ => {
+                assert!(["window", "fusion", "later"].contains(&lost_at), "{line}");
+                lost += 1;
+            }
+        }
+        if value_of(&header, &row, "window_sightings") > 0.0 {
+            let share = |name: &str| value_of(&header, &row, name);
+            let total =
+                share("in_best") + share("split") + share("to_structure") + share("unassigned");
+            assert!((total - 1.0).abs() < 2e-3, "{line}");
+            sighted += 1;
+        }
+    }
+    assert!(sighted >= 4, "{objects}");
+    let summary: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(out.join("summary.json")).expect("summary.json"),
+    )
+    .expect("JSON");
+    let count = |key: &str| summary["summary"][key].as_u64().expect(key);
+    assert_eq!(
+        count("lost_in_windows") + count("lost_in_fusion") + count("lost_later"),
+        lost
+    );
+    let found = summary["counts"]["found_25"].as_u64().expect("found_25");
+    assert_eq!(count("objects_scored"), found + lost);
 }
 
 #[test]

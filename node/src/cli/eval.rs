@@ -13,7 +13,8 @@ use groupforward::config::Config;
 use groupforward::eval::interval::{intervals, paired_differences, Interval};
 use groupforward::eval::run::{run_scene, SceneRun};
 use groupforward::eval::score::{
-    score_instances, score_map, score_windows, Counts, InstanceRow, ObjectRow, Summary,
+    attach_traces, score_instances, score_map, score_windows, trace_objects, Counts, InstanceRow,
+    ObjectRow, Summary,
 };
 use groupforward::ingest::DepthValidity;
 use groupforward::model::ModelsSection;
@@ -132,13 +133,16 @@ pub fn score_scenes(
 impl Scored {
     /// Score one scene's run and add it.
     pub fn add(&mut self, run: &SceneRun) {
-        let (scene_rows, mut counts) = score_map(
+        let (mut scene_rows, mut counts) = score_map(
             &run.scene,
             &run.objects,
             &run.instances,
             run.room_area,
             MIN_OBJECT_PIXELS,
         );
+        let traces = trace_objects(&run.objects, &run.windows, MIN_WINDOW_PIXELS);
+        attach_traces(&mut scene_rows, &run.objects, &traces);
+        counts.count_losses(&scene_rows);
         counts.add(&score_windows(
             &run.objects,
             &run.windows,
@@ -220,12 +224,21 @@ pub fn eval_map(
     let mut csv = csv_writer(&out.join("objects.csv"))?;
     writeln!(
         csv,
-        "scene,object,class,pixels,outcome,instance,iou,name,name_correct,centre_error_m,size_ratio"
+        "scene,object,class,pixels,outcome,instance,iou,name,name_correct,centre_error_m,size_ratio,\
+         window_sightings,window_found,window_best_iou,pixel_best_iou,in_best,split,to_structure,\
+         unassigned,impurity,map_best_iou,lost_at"
     )?;
     for r in &rows {
+        let lost_at = match r.lost_at {
+            Some(stage) => serde_json::to_value(stage)?
+                .as_str()
+                .unwrap_or("?")
+                .to_owned(),
+            None => String::new(),
+        };
         writeln!(
             csv,
-            "{},{},{},{},{},{},{:.4},{},{},{:.4},{:.4}",
+            "{},{},{},{},{},{},{:.4},{},{},{:.4},{:.4},{},{},{:.4},{:.4},{:.3},{:.3},{:.3},{:.3},{:.3},{:.4},{}",
             r.scene,
             r.object,
             r.class,
@@ -236,7 +249,18 @@ pub fn eval_map(
             r.name,
             r.name_correct,
             r.centre_error_m,
-            r.size_ratio
+            r.size_ratio,
+            r.trace.window_sightings,
+            r.trace.window_found,
+            r.trace.window_best_iou,
+            r.trace.pixel_best_iou,
+            r.trace.in_best,
+            r.trace.split,
+            r.trace.to_structure,
+            r.trace.unassigned,
+            r.trace.impurity,
+            r.trace.map_best_iou,
+            lost_at
         )?;
     }
     let mut csv = csv_writer(&out.join("instances.csv"))?;
@@ -482,5 +506,11 @@ fn markdown(total: &Summary, per_scene: &[(String, Counts, usize)]) -> String {
         out.push_str(&row(name, &counts.summary()));
     }
     out.push_str(&row("**all**", total));
+    out.push_str(&format!(
+        "\nObjects not found at IoU 0.25: {} lost in the windows (no window grouped them as themselves), \
+         {} in fusion (a window did, the map never held them), {} later (the map held them, \
+         then lost them); per object in objects.csv (`lost_at`).\n",
+        total.lost_in_windows, total.lost_in_fusion, total.lost_later
+    ));
     out
 }

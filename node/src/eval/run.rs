@@ -15,6 +15,7 @@ use groupforward_sim::simulation::Simulation;
 use rayon::prelude::*;
 
 use super::score::{ListedInstance, TruthObject, WindowRecord};
+use super::window::sample;
 use crate::config::Config;
 use crate::frame::SyncedFrame;
 use crate::graph::walls::object_list;
@@ -22,6 +23,7 @@ use crate::graph::{GraphError, SceneMap};
 use crate::ingest::{DepthValidity, Ingest};
 use crate::node::Node;
 use crate::recon::boxes::{OrientedBox, DEFAULT_TRIM};
+use crate::recon::metrics::{object_coverage, ObjectCoverage};
 use crate::timing::{Stage, StageTimes};
 use crate::window::{WindowError, WindowModels, WindowOutput};
 
@@ -119,6 +121,17 @@ pub struct RecordedScene {
     bag: Vec<u8>,
     /// Object pixels per frame, by the stamp the frame's messages carry.
     frame_pixels: HashMap<i64, BTreeMap<u16, u64>>,
+    /// Each frame's instance ids (its first camera's, full resolution; 0 where no object), by
+    /// stamp: where each object's pixels went in a window ([`WindowRecord::coverage`]).
+    frame_truth: HashMap<i64, TruthImage>,
+}
+
+/// One view's ground-truth instance ids.
+#[derive(Debug, Clone)]
+struct TruthImage {
+    width: usize,
+    height: usize,
+    instance: Vec<u16>,
 }
 
 /// Run `file` through the node's stages with `models`; `config` gives the topics, ingest and
@@ -141,7 +154,7 @@ pub fn record_scene(file: &SceneFile) -> Result<RecordedScene, EvalError> {
     };
     let (bag, _) = record_to_memory(&sim, &options).map_err(|e| sim_error(e.to_string()))?;
     // Ground truth beside the pipeline: each frame's object pixels, by the stamp its messages carry.
-    let per_frame: Vec<(i64, BTreeMap<u16, u64>)> = (0..sim.frame_count())
+    let per_frame: Vec<(i64, BTreeMap<u16, u64>, Option<TruthImage>)> = (0..sim.frame_count())
         .into_par_iter()
         .map(|i| {
             let frame = sim.frame(i);
@@ -152,11 +165,16 @@ pub fn record_scene(file: &SceneFile) -> Result<RecordedScene, EvalError> {
                 }
             }
             let stamp = options.start_nanos + (frame.stamp_secs * 1e9).round() as i64;
-            (stamp, pixels)
+            let truth = frame.views.first().map(|v| TruthImage {
+                width: v.truth.width as usize,
+                height: v.truth.height as usize,
+                instance: v.truth.instance.clone(),
+            });
+            (stamp, pixels, truth)
         })
         .collect();
     let mut total: BTreeMap<u16, u64> = BTreeMap::new();
-    for (_, pixels) in &per_frame {
+    for (_, pixels, _) in &per_frame {
         for (id, n) in pixels.iter() {
             *total.entry(*id).or_default() += n;
         }
@@ -169,7 +187,14 @@ pub fn record_scene(file: &SceneFile) -> Result<RecordedScene, EvalError> {
         objects,
         frames: sim.frame_count(),
         bag,
-        frame_pixels: per_frame.into_iter().collect(),
+        frame_truth: per_frame
+            .iter()
+            .filter_map(|(stamp, _, truth)| Some((*stamp, truth.clone()?)))
+            .collect(),
+        frame_pixels: per_frame
+            .into_iter()
+            .map(|(stamp, pixels, _)| (stamp, pixels))
+            .collect(),
     })
 }
 
@@ -245,11 +270,16 @@ pub fn replay_scene_with(
                     *seen.entry(*id).or_default() += n;
                 }
             }
-            let output = models.pass(&frames)?;
+            let mut output = models.pass(&frames)?;
             model_pixels_without_depth +=
                 (output.invalid_depth_pixels + output.model_depth_pixels) as u64;
             lifted_at_model_depth += output.model_depth_pixels as u64;
             on_window(&frames, &output, models)?;
+            let pixel_instances = std::mem::take(&mut output.pixel_instances);
+            let model_size = output.views.first().map_or((0, 0), |v| {
+                let camera = &v.keyframe.camera;
+                (camera.width as usize, camera.height as usize)
+            });
             // Scoring's boxes, outside the timed stages.
             let boxes: Vec<OrientedBox> = output
                 .instances
@@ -267,6 +297,12 @@ pub fn replay_scene_with(
                 .extend(ahead.drain(..).map(|took| (Stage::Keyframe, took)));
             window_times.push(times);
             windows.push(WindowRecord {
+                coverage: window_coverage(
+                    &recorded.frame_truth,
+                    &frames,
+                    model_size,
+                    &pixel_instances,
+                ),
                 objects: seen.into_iter().collect(),
                 instances: boxes.into_iter().zip(report.assigned).collect(),
                 map: listed_instances(&map, models),
@@ -293,6 +329,38 @@ pub fn replay_scene_with(
         lifted_at_model_depth,
         map,
     })
+}
+
+/// Where each object's pixels went in one window's instances (at the model's resolution, the
+/// truth sampled at its pixel centres as `eval window` does); empty when the window lifted
+/// nothing or a frame's truth is missing.
+fn window_coverage(
+    truth: &HashMap<i64, TruthImage>,
+    frames: &[SyncedFrame],
+    model_size: (usize, usize),
+    pixel_instances: &[i32],
+) -> Vec<ObjectCoverage> {
+    let (width, height) = model_size;
+    if width * height * frames.len() != pixel_instances.len() {
+        return Vec::new();
+    }
+    let mut truth_ids = Vec::with_capacity(pixel_instances.len());
+    for frame in frames {
+        let Some(image) = truth.get(&frame.stamp_nanos) else {
+            return Vec::new();
+        };
+        let sampled = sample(
+            &image.instance,
+            (image.width, image.height),
+            (width, height),
+        );
+        truth_ids.extend(sampled.into_iter().map(u32::from));
+    }
+    let predicted: Vec<u32> = pixel_instances
+        .iter()
+        .map(|&k| u32::try_from(k).unwrap_or(u32::MAX))
+        .collect();
+    object_coverage(&predicted, &truth_ids, u32::MAX, 0, 1).unwrap_or_default()
 }
 
 /// The map's object list as the node publishes it ([`object_list`]), each instance with its best

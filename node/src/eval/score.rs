@@ -10,6 +10,7 @@ use pathfinding::prelude::{kuhn_munkres, Matrix};
 use serde::{Deserialize, Serialize};
 
 use crate::recon::boxes::OrientedBox;
+use crate::recon::metrics::ObjectCoverage;
 
 /// IoU thresholds of the recall figures (ScanRefer's Acc@0.25 / Acc@0.5).
 pub const IOU_LOOSE: f64 = 0.25;
@@ -80,6 +81,9 @@ pub struct InstanceRow {
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct WindowRecord {
     pub objects: Vec<(u16, u64)>,
+    /// Where each object's pixels went among the window's instances (the window's own
+    /// segmentation, before boxes: a partial view makes a partial box, not a bad grouping).
+    pub coverage: Vec<ObjectCoverage>,
     pub instances: Vec<(OrientedBox, String)>,
     pub map: Vec<ListedInstance>,
 }
@@ -113,6 +117,59 @@ pub struct ObjectRow {
     pub centre_error_m: f64,
     /// Instance box volume over the object's.
     pub size_ratio: f64,
+    /// Its trail through the run ([`trace_objects`]), and where a scored object that was not
+    /// found was lost.
+    pub trace: ObjectTrace,
+    pub lost_at: Option<LostAt>,
+}
+
+/// One object's trail through a run. Per window whose views saw it: whether a window instance's
+/// box found it (IoU ≥ 0.25; a window seeing part of an object makes a partial box, so this
+/// misses some good groupings), the best pixel IoU of a window instance with its pixels (the
+/// segmentation itself), and where its pixels went (shares over all its sighted pixels: in that
+/// best instance, in other object instances, in instances of the room, in none, and how much of
+/// the best instance was something else). Then the best IoU the map had with it after any window
+/// (one-to-one, as everywhere).
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize)]
+pub struct ObjectTrace {
+    pub window_sightings: u32,
+    pub window_found: u32,
+    pub window_best_iou: f64,
+    pub pixel_best_iou: f64,
+    pub in_best: f64,
+    pub split: f64,
+    pub to_structure: f64,
+    pub unassigned: f64,
+    pub impurity: f64,
+    pub map_best_iou: f64,
+}
+
+/// A window instance that covers an object's pixels at this IoU or more grouped it as itself.
+pub const PIXEL_FOUND_IOU: f64 = 0.5;
+
+/// The stage where an object not found at the end was lost: the map held it once and lost it
+/// (a later fold, merge or box growth); a window grouped it as itself but the map never held it
+/// (fusion, cleaning, listing, box fitting); or no window grouped it (the model, lifting or
+/// HDBSCAN: its pixels given to the room, to other objects, split or left unassigned).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum LostAt {
+    Window,
+    Fusion,
+    Later,
+}
+
+impl ObjectTrace {
+    /// Where this object was lost, for a scored object not found at the end.
+    pub fn lost_at(&self) -> LostAt {
+        if self.map_best_iou >= IOU_LOOSE {
+            LostAt::Later
+        } else if self.pixel_best_iou >= PIXEL_FOUND_IOU {
+            LostAt::Fusion
+        } else {
+            LostAt::Window
+        }
+    }
 }
 
 /// Counts that add up over scenes; [`Counts::summary`] turns them into rates.
@@ -148,6 +205,14 @@ pub struct Counts {
     pub map_sightings: u64,
     pub map_id_changes: u64,
     pub map_ids_shared: u64,
+    /// Scored objects not found at the end, by the stage that lost them ([`LostAt`]); absent
+    /// from runs recorded before they were counted.
+    #[serde(default)]
+    pub lost_in_windows: u64,
+    #[serde(default)]
+    pub lost_in_fusion: u64,
+    #[serde(default)]
+    pub lost_later: u64,
 }
 
 impl Counts {
@@ -175,6 +240,20 @@ impl Counts {
         self.map_sightings += o.map_sightings;
         self.map_id_changes += o.map_id_changes;
         self.map_ids_shared += o.map_ids_shared;
+        self.lost_in_windows += o.lost_in_windows;
+        self.lost_in_fusion += o.lost_in_fusion;
+        self.lost_later += o.lost_later;
+    }
+
+    /// Count the stage each of `rows`' lost objects was lost at.
+    pub fn count_losses(&mut self, rows: &[ObjectRow]) {
+        for lost in rows.iter().filter_map(|r| r.lost_at) {
+            match lost {
+                LostAt::Window => self.lost_in_windows += 1,
+                LostAt::Fusion => self.lost_in_fusion += 1,
+                LostAt::Later => self.lost_later += 1,
+            }
+        }
     }
 
     pub fn summary(&self) -> Summary {
@@ -202,6 +281,9 @@ impl Counts {
             instances_listed: self.instances_listed,
             window_recall_at_25: ratio(self.window_found_25 as f64, self.window_objects),
             window_precision: ratio(self.window_instances_true as f64, self.window_instances),
+            lost_in_windows: self.lost_in_windows,
+            lost_in_fusion: self.lost_in_fusion,
+            lost_later: self.lost_later,
         }
     }
 }
@@ -235,6 +317,10 @@ pub struct Summary {
     /// The same yardstick on the window instances before fusion (objects the window saw).
     pub window_recall_at_25: f64,
     pub window_precision: f64,
+    /// Scored objects not found, by the stage that lost them ([`LostAt`]).
+    pub lost_in_windows: u64,
+    pub lost_in_fusion: u64,
+    pub lost_later: u64,
 }
 
 /// One-to-one matching maximising total IoU; returns per row the column it got and the IoU
@@ -322,6 +408,8 @@ pub fn score_map(
             name_correct: false,
             centre_error_m: f64::NAN,
             size_ratio: f64::NAN,
+            trace: ObjectTrace::default(),
+            lost_at: None,
         };
         if let Some((i, iou)) = matches[k] {
             let instance = &instances[i];
@@ -496,6 +584,83 @@ pub fn score_windows(objects: &[TruthObject], windows: &[WindowRecord], min_pixe
         }
     }
     counts
+}
+
+/// Each object's trail through the windows of one scene ([`ObjectTrace`], in `objects`' order):
+/// the window instances matched to the objects each window saw by at least `min_pixels`, as
+/// [`score_windows`] matches them, and the map after each window against every object.
+pub fn trace_objects(
+    objects: &[TruthObject],
+    windows: &[WindowRecord],
+    min_pixels: u64,
+) -> Vec<ObjectTrace> {
+    let mut traces = vec![ObjectTrace::default(); objects.len()];
+    let mut covered_pixels = vec![0.0f64; objects.len()];
+    let object_boxes: Vec<OrientedBox> = objects.iter().map(|o| o.bbox).collect();
+    for window in windows {
+        let seen: Vec<usize> = window
+            .objects
+            .iter()
+            .filter(|(_, pixels)| *pixels >= min_pixels)
+            .filter_map(|(id, _)| objects.iter().position(|o| o.id == *id))
+            .collect();
+        let seen_boxes: Vec<OrientedBox> = seen.iter().map(|&k| object_boxes[k]).collect();
+        let instance_boxes: Vec<OrientedBox> = window.instances.iter().map(|i| i.0).collect();
+        for (&k, m) in seen.iter().zip(match_by_iou(&seen_boxes, &instance_boxes)) {
+            let trace = &mut traces[k];
+            trace.window_sightings += 1;
+            if let Some((_, iou)) = m {
+                trace.window_best_iou = trace.window_best_iou.max(iou);
+                trace.window_found += u32::from(iou >= IOU_LOOSE);
+            }
+            let id = u32::from(objects[k].id);
+            if let Some(c) = window.coverage.iter().find(|c| c.object == id) {
+                let n = c.pixels as f64;
+                trace.pixel_best_iou = trace.pixel_best_iou.max(c.best_iou);
+                trace.in_best += n * c.in_best;
+                trace.split += n * c.split;
+                trace.to_structure += n * c.to_structure;
+                trace.unassigned += n * c.unassigned;
+                trace.impurity += n * c.impurity;
+                covered_pixels[k] += n;
+            }
+        }
+        let map_boxes: Vec<OrientedBox> = window.map.iter().map(|i| i.bbox).collect();
+        for (trace, m) in traces
+            .iter_mut()
+            .zip(match_by_iou(&object_boxes, &map_boxes))
+        {
+            if let Some((_, iou)) = m {
+                trace.map_best_iou = trace.map_best_iou.max(iou);
+            }
+        }
+    }
+    for (trace, &n) in traces.iter_mut().zip(&covered_pixels) {
+        if n > 0.0 {
+            for share in [
+                &mut trace.in_best,
+                &mut trace.split,
+                &mut trace.to_structure,
+                &mut trace.unassigned,
+                &mut trace.impurity,
+            ] {
+                *share /= n;
+            }
+        }
+    }
+    traces
+}
+
+/// Put each object's trace on its row, and for a scored object not found, the stage that lost it.
+pub fn attach_traces(rows: &mut [ObjectRow], objects: &[TruthObject], traces: &[ObjectTrace]) {
+    for row in rows {
+        let Some(k) = objects.iter().position(|o| o.id == row.object) else {
+            continue;
+        };
+        row.trace = traces[k];
+        let scored = row.outcome != Outcome::NotSeen && row.outcome != Outcome::Found;
+        row.lost_at = scored.then(|| row.trace.lost_at());
+    }
 }
 
 #[cfg(test)]
@@ -693,16 +858,19 @@ mod tests {
                 objects: vec![(1, 500), (2, 500)],
                 instances: vec![at(0.0, "a"), at(2.0, "b")],
                 map: vec![],
+                ..WindowRecord::default()
             },
             WindowRecord {
                 objects: vec![(1, 500), (2, 500), (3, 10)],
                 instances: vec![at(0.0, "a"), at(2.0, "c"), at(4.0, "d")],
                 map: vec![],
+                ..WindowRecord::default()
             },
             WindowRecord {
                 objects: vec![(2, 500)],
                 instances: vec![at(2.0, "c")],
                 map: vec![],
+                ..WindowRecord::default()
             },
         ];
         let counts = score_windows(&objects, &windows, 100);
@@ -721,6 +889,7 @@ mod tests {
             objects: seen,
             instances: vec![],
             map,
+            ..WindowRecord::default()
         };
         let windows = vec![
             // Object 3 is in the map before it was seen enough: not yet counted.
@@ -782,5 +951,82 @@ mod tests {
         // The same matching as the object table.
         let (object_rows, _) = score_map("s", &objects, &map, 30.0, 1000);
         assert_eq!(object_rows[0].instance, "a");
+    }
+
+    #[test]
+    fn each_lost_object_is_traced_to_the_stage_that_lost_it() {
+        // Four chairs: 1 found everywhere; 2 given to the room in its window; 3 grouped as itself
+        // by its window, which saw a part of it (a small box), but never held by the map; 4
+        // held by the map after the first window, its box grown past it at the end.
+        let mut objects = objects();
+        objects.push(object(4, 6.0, 0.5));
+        let at = |x: f64, size: f64, id: &str| (object(0, x, size).bbox, id.to_owned());
+        let covered = |object: u32, best_iou: f64, to_structure: f64| ObjectCoverage {
+            object,
+            pixels: 1000,
+            best_iou,
+            in_best: best_iou,
+            split: 0.0,
+            to_structure,
+            unassigned: 1.0 - best_iou - to_structure,
+            impurity: 0.0,
+        };
+        let windows = vec![
+            WindowRecord {
+                objects: vec![(1, 500), (2, 500), (3, 500), (4, 500)],
+                coverage: vec![
+                    covered(1, 0.9, 0.0),
+                    covered(2, 0.1, 0.8),
+                    covered(3, 0.8, 0.0),
+                    covered(4, 0.9, 0.0),
+                ],
+                instances: vec![at(0.0, 0.5, "a"), at(4.0, 0.15, "c"), at(6.0, 0.5, "d")],
+                map: vec![listed("a", 0.0, 0.5), listed("d", 6.0, 0.5)],
+            },
+            WindowRecord {
+                objects: vec![(1, 500), (4, 50)],
+                coverage: vec![covered(1, 0.7, 0.0)],
+                instances: vec![at(0.0, 0.5, "a")],
+                // The map's box for 4 grew to three times its size (IoU 1/27).
+                map: vec![listed("a", 0.0, 0.5), listed("d", 6.0, 1.5)],
+            },
+        ];
+        let map = windows[1].map.clone();
+        let (mut rows, mut counts) = score_map("s", &objects, &map, 30.0, 100);
+        let traces = trace_objects(&objects, &windows, 100);
+        attach_traces(&mut rows, &objects, &traces);
+        counts.count_losses(&rows);
+        let lost: Vec<Option<LostAt>> = rows.iter().map(|r| r.lost_at).collect();
+        assert_eq!(
+            lost,
+            [
+                None,
+                Some(LostAt::Window),
+                Some(LostAt::Fusion),
+                Some(LostAt::Later)
+            ]
+        );
+        // Object 3's box was too small to count; its pixels say the window had it.
+        assert_eq!((traces[2].window_found, traces[2].pixel_best_iou), (0, 0.8));
+        assert!((traces[1].to_structure - 0.8).abs() < 1e-9);
+        // Object 4's second window saw it by too few pixels to count as a sighting.
+        assert_eq!((traces[3].window_sightings, traces[3].window_found), (1, 1));
+        assert!((traces[3].map_best_iou - 1.0).abs() < 1e-9);
+        // Object 1's shares are averaged over its sighted pixels: (0.9 + 0.7) / 2.
+        assert_eq!((traces[0].window_sightings, traces[0].window_found), (2, 2));
+        assert!((traces[0].in_best - 0.8).abs() < 1e-9);
+        assert_eq!(
+            (
+                counts.lost_in_windows,
+                counts.lost_in_fusion,
+                counts.lost_later
+            ),
+            (1, 1, 1)
+        );
+        let summary = counts.summary();
+        assert_eq!(
+            summary.lost_in_windows + summary.lost_in_fusion + summary.lost_later,
+            3
+        );
     }
 }

@@ -128,7 +128,7 @@ pub fn synced_frame(view: &SimView, stamp_nanos: i64) -> Result<SyncedFrame, Eva
 
 /// Full-resolution `values` (row-major, `full` = width × height) sampled at the centres of a
 /// `size` grid (nearest: labels and depth must not blend).
-fn sample<T: Copy>(values: &[T], full: (usize, usize), size: (usize, usize)) -> Vec<T> {
+pub(crate) fn sample<T: Copy>(values: &[T], full: (usize, usize), size: (usize, usize)) -> Vec<T> {
     let ((fw, fh), (w, h)) = (full, size);
     let mut out = Vec::with_capacity(w * h);
     for y in 0..h {
