@@ -746,6 +746,13 @@ fn save_then_load_gives_the_identical_map_and_graph() {
     let loaded = persist::load(&path, map.params).unwrap();
     assert_eq!(loaded, map);
     assert_eq!(loaded.graph(2, 10.0).unwrap(), map.graph(2, 10.0).unwrap());
+    // Where the cameras stood (the mean of the window's two camera centres) travels too: the
+    // boxes of objects seen from one side are completed away from it.
+    let viewpoint = loaded.instances[0].viewpoint.expect("a viewpoint");
+    assert!(
+        (viewpoint - Vec3::new(0.25, 0.0, 0.0)).length() < 1e-6,
+        "{viewpoint}"
+    );
 }
 
 #[test]

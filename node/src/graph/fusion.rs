@@ -292,6 +292,16 @@ impl<'a> PointGrid<'a> {
     }
 }
 
+/// The mean camera centre of a window's views (`None` without finite ones).
+fn mean_camera_centre(views: &[WindowView]) -> Option<Vec3> {
+    let centres: Vec<Vec3> = views
+        .iter()
+        .map(|v| v.keyframe.world_from_camera.translation.as_vec3())
+        .filter(|c| c.is_finite())
+        .collect();
+    (!centres.is_empty()).then(|| centres.iter().sum::<Vec3>() / centres.len() as f32)
+}
+
 /// Fraction of `g`'s Gaussians that `view` sees through: inside the image, in front of the
 /// camera, with the observed depth behind them by more than `tolerance` (free space where the
 /// point was), and the number that project into the image. A point the view does not see
@@ -354,6 +364,7 @@ impl SceneMap {
         same_kind: &dyn Fn(&[f32], &[f32]) -> bool,
     ) -> Result<FusionReport, GraphError> {
         let p = self.params;
+        let viewpoint = mean_camera_centre(views);
         for (i, w) in window.iter().enumerate() {
             w.gaussians
                 .validate()
@@ -503,6 +514,7 @@ impl SceneMap {
                     }
                     matched[j] = true;
                     let m = &mut self.instances[j];
+                    m.observe_from(viewpoint, w.gaussians.len() as f32);
                     m.merge(&w.gaussians, &w.prototype, w.support.max(1) as f64, p);
                     m.confidence = (m.confidence + p.confirm_gain).min(1.0);
                     m.observations += 1;
@@ -513,6 +525,7 @@ impl SceneMap {
                 None => {
                     let id = self.new_id();
                     report.assigned.push(id.clone());
+                    let viewpoint_weight = w.gaussians.len() as f32;
                     self.instances.push(Instance {
                         id,
                         gaussians: capped(w.gaussians, p.voxel, p.max_gaussians_per_instance),
@@ -522,6 +535,12 @@ impl SceneMap {
                         observations: 1,
                         first_seen_nanos: stamp_nanos,
                         last_seen_nanos: stamp_nanos,
+                        viewpoint,
+                        viewpoint_weight: if viewpoint.is_some() {
+                            viewpoint_weight
+                        } else {
+                            0.0
+                        },
                     });
                     report.born += 1;
                 }

@@ -18,6 +18,11 @@ pub struct Instance {
     pub observations: u32,
     pub first_seen_nanos: i64,
     pub last_seen_nanos: i64,
+    /// Where the cameras that saw it stood: the mean camera centre of the windows it was seen in,
+    /// weighted by the Gaussians each gave it (`None` before any, e.g. restored from a map saved
+    /// without it). A box seen from one side is completed away from it ([`super::amodal`]).
+    pub viewpoint: Option<Vec3>,
+    pub viewpoint_weight: f32,
 }
 
 impl Instance {
@@ -34,6 +39,19 @@ impl Instance {
     /// points, completed to the whole circle when they are the seen side of a round object.
     pub fn oriented_box(&self) -> OrientedBox {
         fit_object_box(&self.gaussians.means, DEFAULT_TRIM)
+    }
+
+    /// Add `weight` of observations made from `viewpoint` to the weighted mean viewpoint.
+    pub(super) fn observe_from(&mut self, viewpoint: Option<Vec3>, weight: f32) {
+        let Some(v) = viewpoint.filter(|v| v.is_finite() && weight > 0.0) else {
+            return;
+        };
+        let total = self.viewpoint_weight + weight;
+        self.viewpoint = Some(match self.viewpoint {
+            Some(mean) => mean + (v - mean) * (weight / total),
+            None => v,
+        });
+        self.viewpoint_weight = total;
     }
 
     /// Add Gaussians (voxel-merged, capped) and a prototype observed with `weight` (count-weighted
@@ -72,6 +90,7 @@ impl Instance {
             other.prototype_weight,
             p,
         );
+        self.observe_from(other.viewpoint, other.viewpoint_weight);
         self.confidence = self.confidence.max(other.confidence);
         self.observations += other.observations;
         self.first_seen_nanos = self.first_seen_nanos.min(other.first_seen_nanos);

@@ -9,6 +9,7 @@
 //! Memory stays bounded: Gaussians per instance and keyframes are capped, and instances beyond a
 //! clearing radius from the robot are dropped. [`SceneMap::graph`] derives nodes and edges.
 
+pub mod amodal;
 pub mod error;
 pub mod fusion;
 pub mod instance;

@@ -108,6 +108,11 @@ struct InstanceHeader {
     observations: u32,
     first_seen_nanos: i64,
     last_seen_nanos: i64,
+    /// Absent from maps saved before viewpoints were kept.
+    #[serde(default)]
+    viewpoint: Option<[f32; 3]>,
+    #[serde(default)]
+    viewpoint_weight: f32,
     gaussians: usize,
     embedding_dim: usize,
     extra_dim: usize,
@@ -146,6 +151,8 @@ pub fn to_bytes(map: &SceneMap) -> Vec<u8> {
                 observations: i.observations,
                 first_seen_nanos: i.first_seen_nanos,
                 last_seen_nanos: i.last_seen_nanos,
+                viewpoint: i.viewpoint.map(|v| v.to_array()),
+                viewpoint_weight: i.viewpoint_weight,
                 gaussians: i.gaussians.len(),
                 embedding_dim: i.gaussians.embedding_dim,
                 extra_dim: i.gaussians.extra_dim,
@@ -297,6 +304,8 @@ pub fn from_bytes(bytes: &[u8], params: FusionParams) -> Result<SceneMap, Persis
             observations: h.observations,
             first_seen_nanos: h.first_seen_nanos,
             last_seen_nanos: h.last_seen_nanos,
+            viewpoint: h.viewpoint.map(Vec3::from_array).filter(|v| v.is_finite()),
+            viewpoint_weight: h.viewpoint_weight,
         });
     }
     let keyframes = header

@@ -9,9 +9,9 @@
 //! [`MAX_BACK_M`] on one side, is extended back to that plane. The wall behind the object itself is
 //! hidden by it, so the plane is read from the wall around it (beside and above the surface).
 
-use glam::{DVec2, DVec3, Vec3};
+use glam::{DVec2, Vec3};
 
-use super::{Instance, SceneMap};
+use super::{amodal, Instance, SceneMap};
 use crate::group::cleaning::floor_height;
 use crate::group::semantics::Vocabulary;
 use crate::recon::boxes::OrientedBox;
@@ -209,22 +209,10 @@ fn complete_to_wall(fitted: OrientedBox, wall: Option<(DVec2, (f64, f64))>) -> O
     let Some((normal, (sign, depth))) = wall else {
         return fitted;
     };
-    let size = fitted.size;
-    let thin = size.x.min(size.y);
-    let thin_along_x = size.x <= size.y;
-    let centre = fitted.centre.truncate();
+    let thin = fitted.size.x.min(fitted.size.y);
     // Front face at -thin/2 (away from the wall), back at the wall: along `sign * normal`.
-    let extent = depth + thin / 2.0;
     let shift = sign * (depth - thin / 2.0) / 2.0;
-    let moved = centre + normal * shift;
-    let mut completed = fitted;
-    completed.centre = DVec3::new(moved.x, moved.y, fitted.centre.z);
-    if thin_along_x {
-        completed.size.x = extent;
-    } else {
-        completed.size.y = extent;
-    }
-    completed
+    amodal::deepened(fitted, normal * shift, depth + thin / 2.0)
 }
 
 /// A box's bottom and top heights.
@@ -295,8 +283,35 @@ pub fn object_list<'a>(
     map.instances
         .iter()
         .filter(|i| vocabulary.is_none_or(|v| v.is_listed(&i.prototype, i.gaussians.len())))
-        .filter_map(|i| published_box(fit(i), &walls, map, vocabulary).map(|b| (i, b)))
+        .filter_map(|i| {
+            let placed = published_box(fit(i), &walls, map, vocabulary)?;
+            Some((i, seen_from_one_side(placed, i, vocabulary)))
+        })
         .collect()
+}
+
+/// `placed` completed away from the instance's viewpoint to its name's typical depth when it is
+/// an object's face seen from one side ([`amodal`]); as it is without a name, a depth or a
+/// viewpoint.
+fn seen_from_one_side(
+    placed: OrientedBox,
+    instance: &Instance,
+    vocabulary: Option<&Vocabulary>,
+) -> OrientedBox {
+    let (Some(vocabulary), Some(viewpoint)) = (vocabulary, instance.viewpoint) else {
+        return placed;
+    };
+    let Some((name, _)) = vocabulary
+        .hypotheses(&instance.prototype, 1)
+        .into_iter()
+        .next()
+    else {
+        return placed;
+    };
+    match amodal::typical_depth(&name) {
+        Some(depth) => amodal::complete_away_from(placed, viewpoint, depth),
+        None => placed,
+    }
 }
 
 /// Depth of a plane parallel to the surface among `depths` (one side's structure points): the

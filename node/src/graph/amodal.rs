@@ -1,0 +1,195 @@
+//! Objects seen from one side, away from any wall: a chair seen from behind is its backrest, a
+//! monitor its screen, a sofa its front, and the box fitted to those points is a few centimetres
+//! deep (3D IoU with the object near zero; `eval map` traces most such losses to this). Where the
+//! wall completion ([`super::walls`]) has no wall to read, the object's name does: the box is
+//! extended along its thin axis, away from where the cameras that saw it stood, to the depth
+//! objects of that name typically have. A size prior, so only for names with one, and only for
+//! boxes much thinner than that depth: a box already deep enough is never changed.
+
+use glam::{DVec2, DVec3, Vec3};
+
+use crate::recon::boxes::OrientedBox;
+
+/// Typical depth (m) of the objects each name stands for: the median shorter horizontal side of
+/// the ground-truth boxes of the simulator's `train` split (the scenes the models were trained
+/// on; `the_typical_depths_are_the_training_rooms_medians` recomputes them). Names without an
+/// entry (round objects, whose completion is the circle's; structure) are never extended.
+pub const TYPICAL_DEPTH_M: &[(&str, f64)] = &[
+    ("chair", 0.45),
+    ("sofa", 0.86),
+    ("table", 0.78),
+    ("desk", 0.69),
+    ("bed", 1.55),
+    ("cabinet", 0.50),
+    ("bookshelf", 0.32),
+    ("refrigerator", 0.66),
+    ("monitor", 0.16),
+    ("toilet", 0.40),
+    ("sink", 0.44),
+    ("box", 0.29),
+];
+
+/// A box is extended only when it is thinner than this share of the typical depth.
+pub const THIN_SHARE: f64 = 0.35;
+/// Its face (the wide horizontal side and the height) at least this large: smaller pieces are
+/// fragments, not an object's side.
+pub const MIN_FACE_M: f64 = 0.15;
+/// The viewpoint must lie at least this far off the face's plane (m) to tell its sides apart.
+const MIN_VIEW_OFFSET_M: f64 = 0.1;
+
+/// The typical depth of `name`'s objects, if it has one.
+pub fn typical_depth(name: &str) -> Option<f64> {
+    TYPICAL_DEPTH_M
+        .iter()
+        .find(|(n, _)| *n == name)
+        .map(|(_, d)| *d)
+}
+
+/// `fitted` extended along its thin horizontal axis, away from `viewpoint`, to `depth`, when it
+/// is a face of an object of that depth seen from one side (see the module notes); otherwise
+/// `fitted` as it is.
+pub fn complete_away_from(fitted: OrientedBox, viewpoint: Vec3, depth: f64) -> OrientedBox {
+    let size = fitted.size;
+    let viewpoint = viewpoint.as_dvec3();
+    if !(fitted.centre.is_finite() && size.is_finite() && viewpoint.is_finite() && depth > 0.0) {
+        return fitted;
+    }
+    let (thin, wide) = (size.x.min(size.y), size.x.max(size.y));
+    if thin >= THIN_SHARE * depth || wide < MIN_FACE_M || size.z < MIN_FACE_M {
+        return fitted;
+    }
+    let thin_along_x = size.x <= size.y;
+    let (c, s) = (fitted.yaw.cos(), fitted.yaw.sin());
+    let normal = if thin_along_x {
+        DVec2::new(c, s)
+    } else {
+        DVec2::new(-s, c)
+    };
+    let offset = (fitted.centre - viewpoint).truncate().dot(normal);
+    if offset.abs() < MIN_VIEW_OFFSET_M {
+        return fitted;
+    }
+    // The seen face stays where it is; the box grows behind it, on the far side from the viewer.
+    let away = normal * offset.signum();
+    deepened(fitted, away * (depth - thin) / 2.0, depth)
+}
+
+/// `fitted` with its thinner horizontal side `extent` long and its centre moved by `shift` in
+/// the ground plane: a face completed to the object behind it.
+pub(super) fn deepened(fitted: OrientedBox, shift: DVec2, extent: f64) -> OrientedBox {
+    let moved = fitted.centre.truncate() + shift;
+    let mut completed = fitted;
+    completed.centre = DVec3::new(moved.x, moved.y, fitted.centre.z);
+    if fitted.size.x <= fitted.size.y {
+        completed.size.x = extent;
+    } else {
+        completed.size.y = extent;
+    }
+    completed
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A chair's backrest seen from behind: 0.45 m wide, 3 cm deep, its normal along y.
+    fn backrest(yaw: f64) -> OrientedBox {
+        OrientedBox {
+            centre: DVec3::new(1.0, 2.0, 0.5),
+            size: DVec3::new(0.45, 0.03, 1.0),
+            yaw,
+        }
+    }
+
+    #[test]
+    fn a_face_seen_from_one_side_grows_away_from_the_viewer() {
+        for yaw in [0.0, 0.7, -2.0] {
+            let face = backrest(yaw);
+            let normal = DVec2::new(-yaw.sin(), yaw.cos());
+            // The viewer stands 2 m in front of the face, on the normal's negative side.
+            let viewer = face.centre - (normal * 2.0).extend(0.0);
+            let completed = complete_away_from(face, viewer.as_vec3(), 0.45);
+            assert!((completed.size.y - 0.45).abs() < 1e-9, "{completed:?}");
+            assert_eq!((completed.size.x, completed.size.z), (0.45, 1.0));
+            // The seen face (nearest the viewer) did not move; the rest lies behind it.
+            let near =
+                |b: &OrientedBox| (b.centre - viewer).truncate().dot(normal) - b.size.y / 2.0;
+            assert!((near(&completed) - near(&face)).abs() < 1e-9);
+            assert!((completed.centre - face.centre).truncate().dot(normal) > 0.2);
+        }
+    }
+
+    #[test]
+    fn deep_boxes_small_pieces_and_a_viewer_in_the_plane_keep_their_box() {
+        let face = backrest(0.0);
+        let viewer = Vec3::new(1.0, 0.0, 1.2);
+        let deep = OrientedBox {
+            size: DVec3::new(0.45, 0.3, 1.0),
+            ..face
+        };
+        assert_eq!(complete_away_from(deep, viewer, 0.45), deep);
+        let piece = OrientedBox {
+            size: DVec3::new(0.1, 0.02, 1.0),
+            ..face
+        };
+        assert_eq!(complete_away_from(piece, viewer, 0.45), piece);
+        let beside = Vec3::new(3.0, 2.0, 1.2);
+        assert_eq!(complete_away_from(face, beside, 0.45), face);
+    }
+
+    #[test]
+    fn degenerate_boxes_and_viewpoints_stay_finite_and_unchanged() {
+        let face = backrest(0.0);
+        for viewer in [Vec3::NAN, Vec3::new(f32::INFINITY, 0.0, 0.0)] {
+            assert_eq!(complete_away_from(face, viewer, 0.45), face);
+        }
+        assert_eq!(complete_away_from(face, Vec3::ZERO, 0.0), face);
+        let flat = OrientedBox {
+            size: DVec3::ZERO,
+            ..face
+        };
+        assert_eq!(complete_away_from(flat, Vec3::ZERO, 0.45), flat);
+        let nan = OrientedBox {
+            centre: DVec3::NAN,
+            ..face
+        };
+        let kept = complete_away_from(nan, Vec3::ZERO, 0.45);
+        assert!(kept.centre.x.is_nan() && kept.size == face.size);
+    }
+
+    #[test]
+    fn the_typical_depths_are_the_training_rooms_medians() {
+        use groupforward_sim::procedural::{generate, Split};
+        use groupforward_sim::simulation::Simulation;
+        let classes = groupforward_sim::library::classes();
+        let mut depths: std::collections::HashMap<&str, Vec<f64>> = Default::default();
+        for index in 0..200 {
+            let Some(file) = generate(Split::Train, index) else {
+                break;
+            };
+            let sim = Simulation::new(file).expect("a training scene loads");
+            for object in &sim.scene.objects {
+                let Some(class) = classes.iter().find(|c| c.id == object.class_id) else {
+                    continue;
+                };
+                let b = crate::eval::run::truth_box(object);
+                depths
+                    .entry(class.name)
+                    .or_default()
+                    .push(b.size.x.min(b.size.y));
+            }
+        }
+        for (name, shipped) in TYPICAL_DEPTH_M {
+            let seen = depths
+                .get_mut(name)
+                .unwrap_or_else(|| panic!("no {name} in train"));
+            seen.sort_by(f64::total_cmp);
+            let median = seen[seen.len() / 2];
+            println!("{name}: {median:.3} over {}", seen.len());
+            assert!(
+                (median - shipped).abs() <= 0.1 * shipped,
+                "{name}: shipped {shipped}, train median {median:.3}"
+            );
+        }
+    }
+}
