@@ -208,10 +208,65 @@ pub struct WindowOutput {
     /// sensor's: what `eval window` scores.
     pub model_depth: Vec<f32>,
     /// Per model pixel (view-major): the index of the instance in `instances` its Gaussian went
-    /// to, or -1 (not lifted, noise, or cleaned out).
+    /// to, or a negative [`Unassigned`] code saying why it went to none.
     pub pixel_instances: Vec<i32>,
     /// Time per stage of this pass.
     pub times: StageTimes,
+}
+
+/// Why a model pixel is in no window instance: the negative codes of
+/// [`WindowOutput::pixel_instances`], one per stage that can drop a pixel, in pipeline order.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[repr(i32)]
+pub enum Unassigned {
+    /// No Gaussian: no valid depth (RGB-D) or not lifted.
+    NotLifted = -1,
+    /// HDBSCAN's noise, or farther than `noise_distance` from every centroid.
+    Noise = -2,
+    /// A flying pixel at a depth edge, or a nearly transparent Gaussian.
+    Edge = -3,
+    /// A 3D connected part of its cluster too small to be an object.
+    Speck = -4,
+    /// Floor around an object's foot (support bleed).
+    Support = -5,
+    /// A point the semantic model calls another object than its instance's.
+    OtherObject = -6,
+}
+
+impl Unassigned {
+    pub const ALL: [Unassigned; 6] = [
+        Unassigned::NotLifted,
+        Unassigned::Noise,
+        Unassigned::Edge,
+        Unassigned::Speck,
+        Unassigned::Support,
+        Unassigned::OtherObject,
+    ];
+
+    /// The reason a `pixel_instances` code stands for; `None` for an instance index.
+    pub fn of_code(code: i32) -> Option<Self> {
+        Self::ALL.into_iter().find(|r| *r as i32 == code)
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Unassigned::NotLifted => "not_lifted",
+            Unassigned::Noise => "noise",
+            Unassigned::Edge => "edge",
+            Unassigned::Speck => "speck",
+            Unassigned::Support => "support",
+            Unassigned::OtherObject => "other_object",
+        }
+    }
+}
+
+/// Mark in `why` the points a stage took out of every cluster (`before` assigned, `after` not).
+fn mark_dropped(before: &[i32], after: &[i32], why: &mut [Unassigned], reason: Unassigned) {
+    for ((b, a), w) in before.iter().zip(after).zip(why.iter_mut()) {
+        if *b >= 0 && *a < 0 {
+            *w = reason;
+        }
+    }
 }
 
 /// Run the model on `frames`, group the embeddings, and split the Gaussians by instance. With a
@@ -409,9 +464,14 @@ pub fn pass_with_cache(
     let cleaning = CleaningParams::default();
     let flying = flying_pixels(&prediction.depth, w, h, cleaning.flying_ratio);
     let mut labels = grouped.labels;
+    // Why each point ends in no instance, by the first stage that dropped it.
+    let mut why = vec![Unassigned::Noise; labels.len()];
     for (i, label) in labels.iter_mut().enumerate() {
         let at_edge = pixels.get(i).is_none_or(|&p| flying[p]);
         if at_edge || gaussians.opacities[i] < cleaning.min_opacity {
+            if *label >= 0 {
+                why[i] = Unassigned::Edge;
+            }
             *label = -1;
         }
     }
@@ -427,13 +487,16 @@ pub fn pass_with_cache(
         .get(depths.len() / 2)
         .map_or(0.0, |&d| f64::from(d) / focal) as f32;
     let cell = cleaning.cell.max(3.0 * footprint);
+    let before = labels.clone();
     let clusters = split_components(
         &mut labels,
         &gaussians.means,
         cell,
         grouping.hdbscan.min_cluster_size,
     );
+    mark_dropped(&before, &labels, &mut why, Unassigned::Speck);
     if let Some(floor) = floor_height(&gaussians.means) {
+        let before = labels.clone();
         drop_support_bleed(
             &mut labels,
             &gaussians.means,
@@ -442,6 +505,7 @@ pub fn pass_with_cache(
             cleaning.support_slab,
             cleaning.support_margin,
         );
+        mark_dropped(&before, &labels, &mut why, Unassigned::Support);
     }
     times.0.push((Stage::Clean, clean_started.elapsed()));
     let semantics_started = std::time::Instant::now();
@@ -463,7 +527,9 @@ pub fn pass_with_cache(
                         .iter()
                         .position(|p| p == OTHER_PHRASE)
                         .unwrap_or(vocabulary.phrases.len()) as u32;
+                    let before = labels.clone();
                     drop_other_objects(&mut labels, &classes, clusters, other);
+                    mark_dropped(&before, &labels, &mut why, Unassigned::OtherObject);
                 }
                 match instance_prototypes_of(&features, &pixels, &labels, size, clusters) {
                     Ok(found) => instance_prototypes = found,
@@ -503,10 +569,13 @@ pub fn pass_with_cache(
             kept += 1;
         }
     }
-    let mut pixel_instances = vec![-1i32; prediction.depth.len()];
-    for (&pixel, &label) in pixels.iter().zip(&labels) {
-        if let (Some(slot), Ok(k)) = (pixel_instances.get_mut(pixel), usize::try_from(label)) {
-            *slot = instance_of_cluster[k];
+    let mut pixel_instances = vec![Unassigned::NotLifted as i32; prediction.depth.len()];
+    for ((&pixel, &label), &reason) in pixels.iter().zip(&labels).zip(&why) {
+        if let Some(slot) = pixel_instances.get_mut(pixel) {
+            *slot = match usize::try_from(label) {
+                Ok(k) => instance_of_cluster[k],
+                Err(_) => reason as i32,
+            };
         }
     }
     let instances = per_instance
@@ -788,6 +857,30 @@ impl WindowModels {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn each_dropped_point_keeps_the_first_stage_that_dropped_it() {
+        let mut why = vec![Unassigned::Noise; 4];
+        // HDBSCAN left point 0 as noise; the edge stage dropped point 1, the speck stage 2.
+        mark_dropped(&[-1, 0, 0, 1], &[-1, -1, 0, 1], &mut why, Unassigned::Edge);
+        mark_dropped(
+            &[-1, -1, 0, 1],
+            &[-1, -1, -1, 1],
+            &mut why,
+            Unassigned::Speck,
+        );
+        assert_eq!(
+            why[..3],
+            [Unassigned::Noise, Unassigned::Edge, Unassigned::Speck]
+        );
+        // The codes are negative, distinct, and read back; an instance index is no reason.
+        for reason in Unassigned::ALL {
+            assert!((reason as i32) < 0);
+            assert_eq!(Unassigned::of_code(reason as i32), Some(reason));
+        }
+        assert_eq!(Unassigned::of_code(0), None);
+        assert_eq!(Unassigned::of_code(-7), None);
+    }
 
     /// A frame `x` metres along the track at `secs` (a keyframe every 0.2 m).
     fn frame_at(x: f64, secs: f64) -> SyncedFrame {

@@ -184,7 +184,7 @@ fn eval_map_against_an_earlier_run_gives_the_paired_difference_and_refuses_other
 }
 
 /// Every scored object that `eval map` did not find names the stage that lost it, and the summary
-/// counts them; the shares of its sighted pixels add up to one.
+/// counts them; the shares of its sighted pixels add up to one, those in no instance by stage too.
 fn the_objects_not_found_are_traced_to_a_stage(out: &std::path::Path) {
     let objects = std::fs::read_to_string(out.join("objects.csv")).expect("objects.csv");
     let mut lines = objects.lines();
@@ -206,6 +206,19 @@ fn the_objects_not_found_are_traced_to_a_stage(out: &std::path::Path) {
             let total =
                 share("in_best") + share("split") + share("to_structure") + share("unassigned");
             assert!((total - 1.0).abs() < 2e-3, "{line}");
+            // Every pixel in no instance was dropped by one named stage.
+            let dropped: f64 = [
+                "not_lifted",
+                "noise",
+                "edge",
+                "speck",
+                "support",
+                "other_object",
+            ]
+            .iter()
+            .map(|name| share(name))
+            .sum();
+            assert!((dropped - share("unassigned")).abs() < 4e-3, "{line}");
             sighted += 1;
         }
     }

@@ -226,7 +226,7 @@ pub fn eval_map(
         csv,
         "scene,object,class,pixels,outcome,instance,iou,name,name_correct,centre_error_m,size_ratio,\
          window_sightings,window_found,window_best_iou,pixel_best_iou,in_best,split,to_structure,\
-         unassigned,impurity,map_best_iou,lost_at"
+         unassigned,not_lifted,noise,edge,speck,support,other_object,impurity,map_best_iou,lost_at"
     )?;
     for r in &rows {
         let lost_at = match r.lost_at {
@@ -238,7 +238,7 @@ pub fn eval_map(
         };
         writeln!(
             csv,
-            "{},{},{},{},{},{},{:.4},{},{},{:.4},{:.4},{},{},{:.4},{:.4},{:.3},{:.3},{:.3},{:.3},{:.3},{:.4},{}",
+            "{},{},{},{},{},{},{:.4},{},{},{:.4},{:.4},{},{},{:.4},{:.4},{:.3},{:.3},{:.3},{:.3},{},{:.3},{:.4},{}",
             r.scene,
             r.object,
             r.class,
@@ -258,6 +258,12 @@ pub fn eval_map(
             r.trace.split,
             r.trace.to_structure,
             r.trace.unassigned,
+            r.trace
+                .unassigned_by
+                .iter()
+                .map(|share| format!("{share:.3}"))
+                .collect::<Vec<_>>()
+                .join(","),
             r.trace.impurity,
             r.trace.map_best_iou,
             lost_at

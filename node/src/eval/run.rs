@@ -14,7 +14,7 @@ use groupforward_sim::scene::SceneFile;
 use groupforward_sim::simulation::Simulation;
 use rayon::prelude::*;
 
-use super::score::{ListedInstance, TruthObject, WindowRecord};
+use super::score::{ListedInstance, TruthObject, WindowRecord, UNASSIGNED_REASONS};
 use super::window::sample;
 use crate::config::Config;
 use crate::frame::SyncedFrame;
@@ -25,7 +25,7 @@ use crate::node::Node;
 use crate::recon::boxes::{OrientedBox, DEFAULT_TRIM};
 use crate::recon::metrics::{object_coverage, ObjectCoverage};
 use crate::timing::{Stage, StageTimes};
-use crate::window::{WindowError, WindowModels, WindowOutput};
+use crate::window::{Unassigned, WindowError, WindowModels, WindowOutput};
 
 #[derive(Debug, thiserror::Error)]
 pub enum EvalError {
@@ -296,13 +296,11 @@ pub fn replay_scene_with(
                 .0
                 .extend(ahead.drain(..).map(|took| (Stage::Keyframe, took)));
             window_times.push(times);
+            let (coverage, unassigned) =
+                window_coverage(&recorded.frame_truth, &frames, model_size, &pixel_instances);
             windows.push(WindowRecord {
-                coverage: window_coverage(
-                    &recorded.frame_truth,
-                    &frames,
-                    model_size,
-                    &pixel_instances,
-                ),
+                coverage,
+                unassigned,
                 objects: seen.into_iter().collect(),
                 instances: boxes.into_iter().zip(report.assigned).collect(),
                 map: listed_instances(&map, models),
@@ -331,6 +329,10 @@ pub fn replay_scene_with(
     })
 }
 
+/// Per object of a window: where its pixels went ([`ObjectCoverage`]) and, of those in no
+/// instance, how many each stage dropped (model pixels, in [`Unassigned::ALL`]'s order).
+type WindowCoverage = (Vec<ObjectCoverage>, Vec<(u16, [u64; UNASSIGNED_REASONS])>);
+
 /// Where each object's pixels went in one window's instances (at the model's resolution, the
 /// truth sampled at its pixel centres as `eval window` does); empty when the window lifted
 /// nothing or a frame's truth is missing.
@@ -339,15 +341,15 @@ fn window_coverage(
     frames: &[SyncedFrame],
     model_size: (usize, usize),
     pixel_instances: &[i32],
-) -> Vec<ObjectCoverage> {
+) -> WindowCoverage {
     let (width, height) = model_size;
     if width * height * frames.len() != pixel_instances.len() {
-        return Vec::new();
+        return WindowCoverage::default();
     }
     let mut truth_ids = Vec::with_capacity(pixel_instances.len());
     for frame in frames {
         let Some(image) = truth.get(&frame.stamp_nanos) else {
-            return Vec::new();
+            return WindowCoverage::default();
         };
         let sampled = sample(
             &image.instance,
@@ -360,7 +362,19 @@ fn window_coverage(
         .iter()
         .map(|&k| u32::try_from(k).unwrap_or(u32::MAX))
         .collect();
-    object_coverage(&predicted, &truth_ids, u32::MAX, 0, 1).unwrap_or_default()
+    let coverage = object_coverage(&predicted, &truth_ids, u32::MAX, 0, 1).unwrap_or_default();
+    // Why each object's pixels in no instance went to none.
+    let mut unassigned: BTreeMap<u16, [u64; UNASSIGNED_REASONS]> = BTreeMap::new();
+    for (&code, &object) in pixel_instances.iter().zip(&truth_ids) {
+        if let (Some(reason), true) = (Unassigned::of_code(code), object > 0) {
+            let slot = Unassigned::ALL
+                .iter()
+                .position(|r| *r == reason)
+                .unwrap_or(0);
+            unassigned.entry(object as u16).or_default()[slot] += 1;
+        }
+    }
+    (coverage, unassigned.into_iter().collect())
 }
 
 /// The map's object list as the node publishes it ([`object_list`]), each instance with its best

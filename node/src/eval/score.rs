@@ -84,6 +84,9 @@ pub struct WindowRecord {
     /// Where each object's pixels went among the window's instances (the window's own
     /// segmentation, before boxes: a partial view makes a partial box, not a bad grouping).
     pub coverage: Vec<ObjectCoverage>,
+    /// Per object, its model pixels in no instance by the stage that dropped them (in the order
+    /// of [`crate::window::Unassigned::ALL`]).
+    pub unassigned: Vec<(u16, [u64; UNASSIGNED_REASONS])>,
     pub instances: Vec<(OrientedBox, String)>,
     pub map: Vec<ListedInstance>,
 }
@@ -141,8 +144,14 @@ pub struct ObjectTrace {
     pub to_structure: f64,
     pub unassigned: f64,
     pub impurity: f64,
+    /// `unassigned` by the stage that dropped the pixels ([`crate::window::Unassigned::ALL`]'s
+    /// order: not lifted, HDBSCAN noise, depth edge, speck, support, another object's class).
+    pub unassigned_by: [f64; UNASSIGNED_REASONS],
     pub map_best_iou: f64,
 }
+
+/// The stages that can leave a pixel in no window instance ([`crate::window::Unassigned`]).
+pub const UNASSIGNED_REASONS: usize = 6;
 
 /// A window instance that covers an object's pixels at this IoU or more grouped it as itself.
 pub const PIXEL_FOUND_IOU: f64 = 0.5;
@@ -624,6 +633,12 @@ pub fn trace_objects(
                 trace.impurity += n * c.impurity;
                 covered_pixels[k] += n;
             }
+            if let Some((_, dropped)) = window.unassigned.iter().find(|(o, _)| *o == objects[k].id)
+            {
+                for (sum, &n) in trace.unassigned_by.iter_mut().zip(dropped) {
+                    *sum += n as f64;
+                }
+            }
         }
         let map_boxes: Vec<OrientedBox> = window.map.iter().map(|i| i.bbox).collect();
         for (trace, m) in traces
@@ -644,6 +659,9 @@ pub fn trace_objects(
                 &mut trace.unassigned,
                 &mut trace.impurity,
             ] {
+                *share /= n;
+            }
+            for share in &mut trace.unassigned_by {
                 *share /= n;
             }
         }
@@ -980,12 +998,15 @@ mod tests {
                     covered(3, 0.8, 0.0),
                     covered(4, 0.9, 0.0),
                 ],
+                // Object 2's 100 pixels in no instance: 60 HDBSCAN noise, 40 on a depth edge.
+                unassigned: vec![(2, [0, 60, 40, 0, 0, 0])],
                 instances: vec![at(0.0, 0.5, "a"), at(4.0, 0.15, "c"), at(6.0, 0.5, "d")],
                 map: vec![listed("a", 0.0, 0.5), listed("d", 6.0, 0.5)],
             },
             WindowRecord {
                 objects: vec![(1, 500), (4, 50)],
                 coverage: vec![covered(1, 0.7, 0.0)],
+                unassigned: vec![],
                 instances: vec![at(0.0, 0.5, "a")],
                 // The map's box for 4 grew to three times its size (IoU 1/27).
                 map: vec![listed("a", 0.0, 0.5), listed("d", 6.0, 1.5)],
@@ -1009,6 +1030,8 @@ mod tests {
         // Object 3's box was too small to count; its pixels say the window had it.
         assert_eq!((traces[2].window_found, traces[2].pixel_best_iou), (0, 0.8));
         assert!((traces[1].to_structure - 0.8).abs() < 1e-9);
+        let by_stage = traces[1].unassigned_by;
+        assert!((by_stage[1] - 0.06).abs() < 1e-9 && (by_stage[2] - 0.04).abs() < 1e-9);
         // Object 4's second window saw it by too few pixels to count as a sighting.
         assert_eq!((traces[3].window_sightings, traces[3].window_found), (1, 1));
         assert!((traces[3].map_best_iou - 1.0).abs() < 1e-9);
