@@ -15,7 +15,6 @@ use groupforward_sim::simulation::Simulation;
 use rayon::prelude::*;
 
 use super::score::{ListedInstance, TruthObject, WindowRecord, UNASSIGNED_REASONS};
-use super::window::sample;
 use crate::config::Config;
 use crate::frame::SyncedFrame;
 use crate::graph::walls::object_list;
@@ -23,7 +22,7 @@ use crate::graph::{GraphError, SceneMap};
 use crate::ingest::{DepthValidity, Ingest};
 use crate::node::Node;
 use crate::recon::boxes::{OrientedBox, DEFAULT_TRIM};
-use crate::recon::metrics::{object_coverage, ObjectCoverage};
+use crate::recon::metrics::{object_coverage, sample_nearest, ObjectCoverage};
 use crate::timing::{Stage, StageTimes};
 use crate::window::{Unassigned, WindowError, WindowModels, WindowOutput};
 
@@ -180,6 +179,14 @@ pub fn record_scene(file: &SceneFile) -> Result<RecordedScene, EvalError> {
         }
     }
     let objects = truth_objects(&sim.scene, |id| total.get(&id).copied().unwrap_or(0));
+    let mut frame_pixels = HashMap::with_capacity(per_frame.len());
+    let mut frame_truth = HashMap::with_capacity(per_frame.len());
+    for (stamp, pixels, truth) in per_frame {
+        frame_pixels.insert(stamp, pixels);
+        if let Some(truth) = truth {
+            frame_truth.insert(stamp, truth);
+        }
+    }
     let room = file.room.size;
     Ok(RecordedScene {
         scene: file.name.clone(),
@@ -187,14 +194,8 @@ pub fn record_scene(file: &SceneFile) -> Result<RecordedScene, EvalError> {
         objects,
         frames: sim.frame_count(),
         bag,
-        frame_truth: per_frame
-            .iter()
-            .filter_map(|(stamp, _, truth)| Some((*stamp, truth.clone()?)))
-            .collect(),
-        frame_pixels: per_frame
-            .into_iter()
-            .map(|(stamp, pixels, _)| (stamp, pixels))
-            .collect(),
+        frame_pixels,
+        frame_truth,
     })
 }
 
@@ -351,7 +352,7 @@ fn window_coverage(
         let Some(image) = truth.get(&frame.stamp_nanos) else {
             return WindowCoverage::default();
         };
-        let sampled = sample(
+        let sampled = sample_nearest(
             &image.instance,
             (image.width, image.height),
             (width, height),

@@ -16,7 +16,7 @@ use crate::model::reconstruction::{resize_rgb_planar, resized_camera};
 use crate::recon::camera::Camera;
 use crate::recon::gaussians::Gaussians;
 use crate::recon::metrics::{
-    adjusted_rand_index, depth_scores, object_coverage, psnr, ssim, ObjectCoverage,
+    adjusted_rand_index, depth_scores, object_coverage, psnr, sample_nearest, ssim, ObjectCoverage,
 };
 use crate::recon::raster::{render, render_labels, RasterSettings};
 use crate::recon::Rigid;
@@ -126,21 +126,6 @@ pub fn synced_frame(view: &SimView, stamp_nanos: i64) -> Result<SyncedFrame, Eva
     })
 }
 
-/// Full-resolution `values` (row-major, `full` = width × height) sampled at the centres of a
-/// `size` grid (nearest: labels and depth must not blend).
-pub(crate) fn sample<T: Copy>(values: &[T], full: (usize, usize), size: (usize, usize)) -> Vec<T> {
-    let ((fw, fh), (w, h)) = (full, size);
-    let mut out = Vec::with_capacity(w * h);
-    for y in 0..h {
-        let sy = (((y as f64 + 0.5) * fh as f64 / h as f64) as usize).min(fh - 1);
-        for x in 0..w {
-            let sx = (((x as f64 + 0.5) * fw as f64 / w as f64) as usize).min(fw - 1);
-            out.push(values[sy * fw + sx]);
-        }
-    }
-    out
-}
-
 /// The vocabulary index of each sim class id (0, walls and floor, and unknown names: `other`).
 fn class_phrases(vocabulary: &Vocabulary) -> impl Fn(u16) -> u32 + '_ {
     let other = phrase_index(vocabulary, OTHER_PHRASE);
@@ -204,9 +189,9 @@ pub fn score_scene(
         let truth_at = |v: &SimView| {
             let full = (v.truth.width as usize, v.truth.height as usize);
             (
-                sample(&v.truth.depth, full, (w, h)),
-                sample(&v.truth.instance, full, (w, h)),
-                sample(&v.truth.class, full, (w, h)),
+                sample_nearest(&v.truth.depth, full, (w, h)),
+                sample_nearest(&v.truth.instance, full, (w, h)),
+                sample_nearest(&v.truth.class, full, (w, h)),
             )
         };
         let (mut true_depth, mut true_instances) = (Vec::new(), Vec::new());
@@ -262,7 +247,8 @@ pub fn score_scene(
                     .map_err(|e| sim_error(format!("semantic model: {e}")))?;
                 let view = &sim_frame.views[0];
                 let full = (view.truth.width as usize, view.truth.height as usize);
-                let classes = sample(&view.truth.class, full, (features.width, features.height));
+                let classes =
+                    sample_nearest(&view.truth.class, full, (features.width, features.height));
                 for (pixel, &class) in classes.iter().enumerate() {
                     eval.source_labels.push(
                         best_phrase(vocabulary, &features.at(pixel)),
@@ -364,12 +350,5 @@ mod tests {
         let short = window_frames(7, 3, 4);
         assert_eq!(short, vec![(vec![0, 2, 4, 6], 1)]);
         assert!(window_frames(5, 1, 4).is_empty());
-    }
-
-    #[test]
-    fn samples_are_taken_at_cell_centres() {
-        let full: Vec<u16> = (0..16).collect(); // 4 × 4
-        assert_eq!(sample(&full, (4, 4), (2, 2)), vec![5, 7, 13, 15]);
-        assert_eq!(sample(&full, (4, 4), (4, 4)), full);
     }
 }

@@ -525,8 +525,8 @@ impl SceneMap {
                 None => {
                     let id = self.new_id();
                     report.assigned.push(id.clone());
-                    let viewpoint_weight = w.gaussians.len() as f32;
-                    self.instances.push(Instance {
+                    let seen_by = w.gaussians.len() as f32;
+                    let mut born = Instance {
                         id,
                         gaussians: capped(w.gaussians, p.voxel, p.max_gaussians_per_instance),
                         prototype: w.prototype,
@@ -535,13 +535,11 @@ impl SceneMap {
                         observations: 1,
                         first_seen_nanos: stamp_nanos,
                         last_seen_nanos: stamp_nanos,
-                        viewpoint,
-                        viewpoint_weight: if viewpoint.is_some() {
-                            viewpoint_weight
-                        } else {
-                            0.0
-                        },
-                    });
+                        viewpoint: None,
+                        viewpoint_weight: 0.0,
+                    };
+                    born.observe_from(viewpoint, seen_by);
+                    self.instances.push(born);
                     report.born += 1;
                 }
             }

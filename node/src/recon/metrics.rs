@@ -263,6 +263,21 @@ pub fn adjusted_rand_index(a: &[u32], b: &[u32]) -> Result<f64> {
     Ok((index - expected) / (max - expected))
 }
 
+/// Full-resolution `values` (row-major, `full` = width × height) sampled at the centres of a
+/// `size` grid (nearest: labels and depth must not blend).
+pub fn sample_nearest<T: Copy>(values: &[T], full: (usize, usize), size: (usize, usize)) -> Vec<T> {
+    let ((fw, fh), (w, h)) = (full, size);
+    let mut out = Vec::with_capacity(w * h);
+    for y in 0..h {
+        let sy = (((y as f64 + 0.5) * fh as f64 / h as f64) as usize).min(fh - 1);
+        for x in 0..w {
+            let sx = (((x as f64 + 0.5) * fw as f64 / w as f64) as usize).min(fw - 1);
+            out.push(values[sy * fw + sx]);
+        }
+    }
+    out
+}
+
 /// Where one object's pixels went in a predicted instance segmentation.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ObjectCoverage {
@@ -359,6 +374,13 @@ pub fn object_coverage(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn samples_are_taken_at_cell_centres() {
+        let full: Vec<u16> = (0..16).collect(); // 4 × 4
+        assert_eq!(sample_nearest(&full, (4, 4), (2, 2)), vec![5, 7, 13, 15]);
+        assert_eq!(sample_nearest(&full, (4, 4), (4, 4)), full);
+    }
 
     const REFERENCE: &str = include_str!("../../tests/reference/metrics.json");
 
