@@ -209,6 +209,33 @@ fn grouping_assigns_every_embedding_and_marks_zero_vectors_noise() {
     .is_err());
 }
 
+#[test]
+fn each_embedding_takes_the_argmax_of_its_assignment_softmax() {
+    // The window labels each embedding with its nearest centroid; that is the paper's rule (the
+    // most probable instance under the assignment softmax, §5.4) for every temperature.
+    let (points, _) = blobs(3000, 8, 6, 0.8, 11);
+    for temperature in [0.05f32, 1.0] {
+        let params = GroupingParams {
+            max_cluster_points: 1500,
+            temperature,
+            ..GroupingParams::default()
+        };
+        let result = group(&points, 8, &params).unwrap();
+        assert!(result.centroids.len() >= 2);
+        let mut probabilities = Vec::new();
+        for (row, &label) in points.chunks(8).zip(&result.labels) {
+            let norm = row.iter().map(|v| v * v).sum::<f32>().sqrt();
+            let unit: Vec<f32> = row.iter().map(|v| v / norm).collect();
+            assignment_probabilities(&unit, &result.centroids, temperature, &mut probabilities);
+            let best = (0..probabilities.len())
+                .max_by(|&a, &b| probabilities[a].total_cmp(&probabilities[b]))
+                .unwrap();
+            let near = embedding_distance(&unit, &result.centroids[best]) <= params.noise_distance;
+            assert_eq!(label, if near { best as i32 } else { -1 });
+        }
+    }
+}
+
 mod semantics {
     use glam::{DQuat, DVec3, Quat, Vec3};
     use groupforward::group::semantics::{propagate, prototypes, LabelledView};

@@ -181,39 +181,56 @@ fn a_window_pass_gives_instances_prototypes_that_name_them() {
 #[test]
 fn features_computed_ahead_give_the_window_the_same_instances_and_prototypes() {
     let (mut reconstruction, mut semantic) = rgbd_and_semantic_models();
+    let vocabulary = vocabulary();
     let sim = Simulation::new(generate(Split::Val, 2).unwrap()).unwrap();
     let frames = window_frames(&sim);
     let grouping = GroupingParams::default();
     let in_window =
         window_pass(&mut reconstruction, Some(&mut semantic), &frames, &grouping).unwrap();
     assert_eq!(in_window.features_cached, 0);
-    // The node computes every keyframe's features on arrival but the newest, which completes the
-    // window; a stale entry of an older keyframe waits too.
+    // The node computes every keyframe's features (and their classes under the vocabulary) on
+    // arrival but the newest, which completes the window; a stale entry of an older keyframe
+    // waits too.
     let mut cache = FeatureCache::with_capacity(8);
     let mut stale = frames[0].clone();
     stale.stamp_nanos -= 1_000_000;
     for frame in std::iter::once(&stale).chain(&frames[..frames.len() - 1]) {
-        assert!(cache.prepare(&mut semantic, frame).is_some());
+        assert!(cache
+            .prepare(&mut semantic, Some(&vocabulary), frame)
+            .is_some());
     }
     assert!(
-        cache.prepare(&mut semantic, &frames[0]).is_none(),
+        cache
+            .prepare(&mut semantic, Some(&vocabulary), &frames[0])
+            .is_none(),
         "computed once per keyframe"
     );
-    let ahead = pass_with_cache(
-        &mut reconstruction,
-        Some((&mut semantic, &mut cache)),
-        None,
-        &frames,
-        &grouping,
-    )
-    .unwrap();
+    let mut plain = FeatureCache::with_capacity(8);
+    for frame in &frames[..frames.len() - 1] {
+        plain.prepare(&mut semantic, None, frame);
+    }
+    let mut run = |cache: &mut FeatureCache, vocabulary: Option<&Vocabulary>| {
+        pass_with_cache(
+            &mut reconstruction,
+            Some((&mut semantic, cache)),
+            vocabulary,
+            &frames,
+            &grouping,
+        )
+        .unwrap()
+    };
+    let named_in_window = run(&mut FeatureCache::with_capacity(0), Some(&vocabulary));
+    let ahead = run(&mut cache, Some(&vocabulary));
     assert_eq!(ahead.features_cached, frames.len() - 1);
     assert!(
         cache.is_empty(),
         "the window took its features and dropped the stale one"
     );
     assert!(!ahead.instances.is_empty());
-    assert_eq!(ahead.instances, in_window.instances);
+    assert_eq!(ahead.instances, named_in_window.instances);
+    assert_eq!(ahead.pixel_instances, named_in_window.pixel_instances);
+    // Without a vocabulary the cached features alone give the window's instances.
+    assert_eq!(run(&mut plain, None).instances, in_window.instances);
 }
 
 /// Depth abs-rel of `predicted` (views of `size` at the model resolution, one after another) against

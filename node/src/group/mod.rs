@@ -184,26 +184,31 @@ pub fn group(
         }
     }
     let centroids = merge_close_clusters(sums, params.merge_distance);
-    let n_clusters = centroids.len();
-    let mut probabilities = Vec::with_capacity(n_clusters);
-    let labels =
-        unit.chunks(dims)
-            .map(|row| {
-                if n_clusters == 0 {
-                    return -1;
+    // Each embedding goes to its nearest centroid, the argmax of the assignment softmax for any
+    // τ (the exponentials themselves were most of this loop's time), unless it is farther than
+    // the noise distance.
+    let noise_distance2 = params.noise_distance * params.noise_distance;
+    let labels = unit
+        .chunks(dims)
+        .map(|row| {
+            let mut nearest = (-1i32, f32::INFINITY);
+            for (k, centroid) in centroids.iter().enumerate() {
+                let d2: f32 = centroid
+                    .iter()
+                    .zip(row)
+                    .map(|(c, v)| (c - v) * (c - v))
+                    .sum();
+                if d2 < nearest.1 {
+                    nearest = (k as i32, d2);
                 }
-                assignment_probabilities(row, &centroids, params.temperature, &mut probabilities);
-                let (best, _) = probabilities.iter().enumerate().fold(
-                    (0, f32::NEG_INFINITY),
-                    |acc, (k, &p)| if p > acc.1 { (k, p) } else { acc },
-                );
-                if embedding_distance(&centroids[best], row) <= params.noise_distance {
-                    best as i32
-                } else {
-                    -1
-                }
-            })
-            .collect();
+            }
+            if nearest.1 <= noise_distance2 {
+                nearest.0
+            } else {
+                -1
+            }
+        })
+        .collect();
     Ok(Grouping {
         labels,
         centroids,

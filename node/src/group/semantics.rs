@@ -67,7 +67,7 @@ pub enum SemanticsError {
         got: usize,
         expected: usize,
     },
-    #[error("view {0}: non-finite semantic feature")]
+    #[error("view {0}: non-finite semantic feature under an instance")]
     NonFinite(usize),
     #[error("rendering: {0}")]
     Render(String),
@@ -100,30 +100,33 @@ pub fn prototypes(
                 expected,
             });
         }
-        if view.features.iter().any(|f| !f.is_finite()) {
-            return Err(SemanticsError::NonFinite(v));
-        }
-        // One 0/1 mask per instance the view labels: a channel's masked sum is then a dot
-        // product over a contiguous plane, which vectorises (a gather per pixel did not).
+        // Labels are spatially coherent, so a view's labelled pixels form few runs of one
+        // instance along the rows: each channel's masked sums are then contiguous slice sums
+        // (vectorised). One 0/1 mask per instance dotted with every plane was 17 ms of a window
+        // on 2 cores; a GEMM of the masks with the features, 31 ms (its packing of the skinny
+        // product dominates).
         let pixels = view.labels.len();
-        let mut masks: Vec<(usize, Vec<f32>)> = Vec::new();
+        let mut runs: Vec<(usize, usize, usize)> = Vec::new();
         for (pixel, &label) in view.labels.iter().enumerate() {
             let Some(k) = usize::try_from(label).ok().filter(|&k| k < instances) else {
                 continue;
             };
             counts[k] += 1;
-            let at = match masks.iter().position(|(own, _)| *own == k) {
-                Some(at) => at,
-                None => {
-                    masks.push((k, vec![0.0; pixels]));
-                    masks.len() - 1
-                }
-            };
-            masks[at].1[pixel] = 1.0;
+            match runs.last_mut() {
+                Some((own, _, end)) if *own == k && *end == pixel => *end = pixel + 1,
+                _ => runs.push((k, pixel, pixel + 1)),
+            }
         }
         for (c, plane) in view.features.chunks_exact(pixels.max(1)).enumerate() {
-            for (k, mask) in &masks {
-                sums[*k][c] += dot(plane, mask);
+            for &(k, start, end) in &runs {
+                // Only features under an instance reach a prototype: a non-finite one there
+                // is refused (elsewhere it harms nothing, and scanning every value cost more than
+                // the sums).
+                let sum = lane_sum(&plane[start..end]);
+                if !sum.is_finite() {
+                    return Err(SemanticsError::NonFinite(v));
+                }
+                sums[k][c] += sum;
             }
         }
     }
@@ -145,19 +148,14 @@ pub fn prototypes(
     Ok((prototypes, counts))
 }
 
-/// `a · b` in eight independent lanes (so the compiler vectorises it), summed in f64.
-fn dot(a: &[f32], b: &[f32]) -> f64 {
+/// The sum of `values` in eight independent lanes (so the compiler vectorises it), in f64.
+fn lane_sum(values: &[f32]) -> f64 {
     let mut lanes = [0.0f32; 8];
-    let (a8, b8) = (a.chunks_exact(8), b.chunks_exact(8));
-    let tail: f64 = a8
-        .remainder()
-        .iter()
-        .zip(b8.remainder())
-        .map(|(x, y)| f64::from(x * y))
-        .sum();
-    for (x, y) in a8.zip(b8) {
+    let chunks = values.chunks_exact(8);
+    let tail: f64 = chunks.remainder().iter().map(|&v| f64::from(v)).sum();
+    for chunk in chunks {
         for lane in 0..8 {
-            lanes[lane] += x[lane] * y[lane];
+            lanes[lane] += chunk[lane];
         }
     }
     lanes.iter().map(|&l| f64::from(l)).sum::<f64>() + tail
