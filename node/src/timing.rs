@@ -12,7 +12,8 @@ pub enum Stage {
     /// The semantic model on one keyframe, run when the keyframe arrives and the worker is idle
     /// (outside every window's time: the window then only pools the cached features).
     Keyframe,
-    /// The reconstruction model's forward pass, inputs and outputs included.
+    /// The reconstruction model's forward pass, inputs and outputs included (the semantic
+    /// features of views not computed ahead run beside it, sharing the cores).
     Model,
     /// Gaussians from the model's outputs (sensor depth in RGB-D).
     Lift,
@@ -20,7 +21,7 @@ pub enum Stage {
     Group,
     /// Flying pixels, opacity and spatial components.
     Clean,
-    /// The semantic model on views without cached features, and the instance prototypes.
+    /// Points named as another object dropped, and the instance prototypes.
     Semantics,
     /// Window instances into the persistent map.
     Fusion,

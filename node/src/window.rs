@@ -435,7 +435,23 @@ pub fn pass_with_cache(
 ) -> Result<WindowOutput, WindowError> {
     let mut times = StageTimes::default();
     let views: Vec<View<'_>> = frames.iter().map(View::from).collect();
-    let mut prediction = times.time(Stage::Model, || model.predict(&views))?;
+    // The semantic features the window still lacks (the newest keyframe's: it completes the
+    // window, so it was not computed ahead) are computed beside the reconstruction model's pass,
+    // whose two threads leave a core idle part of the time.
+    let (prediction, features) = std::thread::scope(|scope| {
+        let features = semantic.map(|(semantic, cache)| {
+            scope.spawn(move || window_features(semantic, cache, vocabulary, frames))
+        });
+        let prediction = times.time(Stage::Model, || model.predict(&views));
+        let features = features.map(|handle| {
+            handle.join().unwrap_or_else(|_| {
+                let lost = ModelError::Input("the semantic features' thread panicked".into());
+                (Err(lost), 0)
+            })
+        });
+        (prediction, features)
+    });
+    let mut prediction = prediction?;
     let model_depth = prediction.depth.clone();
     let lifted = times.time(Stage::Lift, || {
         // RGB-D: geometry from the depth camera (the eval's recall at IoU 0.5 doubles against
@@ -536,8 +552,7 @@ pub fn pass_with_cache(
     let semantics_started = std::time::Instant::now();
     let (mut instance_prototypes, mut semantics_error) = (Vec::new(), None);
     let mut features_cached = 0;
-    if let Some((semantic, cache)) = semantic {
-        let (features, cached) = window_features(semantic, cache, vocabulary, frames);
+    if let Some((features, cached)) = features {
         features_cached = cached;
         match features {
             Err(e) => semantics_error = Some(e.to_string()),

@@ -192,11 +192,7 @@ impl Footprint {
             return 0.0;
         }
         let grid = PointGrid::new(&other.points, radius);
-        let hits = self
-            .points
-            .iter()
-            .filter(|p| grid.nearest_squared(**p).is_some())
-            .count();
+        let hits = self.points.iter().filter(|p| grid.has_within(**p)).count();
         hits as f32 / self.points.len().max(1) as f32
     }
 
@@ -268,27 +264,19 @@ impl<'a> PointGrid<'a> {
         )
     }
 
-    /// Squared distance to the nearest point within the radius, if any.
-    fn nearest_squared(&self, p: Vec3) -> Option<f32> {
+    /// Whether some point lies within the radius of `p` (the first one found ends the search).
+    fn has_within(&self, p: Vec3) -> bool {
         let (x, y, z) = Self::cell(p, self.radius);
         let r2 = self.radius * self.radius;
-        let mut best: Option<f32> = None;
-        for dx in -1..=1 {
-            for dy in -1..=1 {
-                for dz in -1..=1 {
-                    let Some(cell) = self.cells.get(&(x + dx, y + dy, z + dz)) else {
-                        continue;
-                    };
-                    for q in cell {
-                        let d = q.distance_squared(p);
-                        if d <= r2 && best.is_none_or(|b| d < b) {
-                            best = Some(d);
-                        }
-                    }
-                }
-            }
-        }
-        best
+        (-1..=1).any(|dx| {
+            (-1..=1).any(|dy| {
+                (-1..=1).any(|dz| {
+                    self.cells
+                        .get(&(x + dx, y + dy, z + dz))
+                        .is_some_and(|cell| cell.iter().any(|q| q.distance_squared(p) <= r2))
+                })
+            })
+        })
     }
 }
 

@@ -264,43 +264,50 @@ pub fn voxel_downsample(g: &Gaussians, voxel: f32) -> Result<Gaussians> {
         return Err(GaussianError::BadVoxel(voxel));
     }
     g.validate()?;
+    // Points grouped by voxel (a counting sort: voxels in the order their first point comes,
+    // points in index order within each) with no allocation per voxel: a vector per voxel
+    // and per average was most of a window's fusion.
     let mut slots: FxHashMap<(i64, i64, i64), usize> = FxHashMap::default();
-    let mut members: Vec<Vec<usize>> = Vec::new();
-    for (i, mean) in g.means.iter().enumerate() {
+    let mut slot_of = Vec::with_capacity(g.len());
+    let mut sizes: Vec<usize> = Vec::new();
+    for mean in &g.means {
         let key = (
             (mean.x / voxel).floor() as i64,
             (mean.y / voxel).floor() as i64,
             (mean.z / voxel).floor() as i64,
         );
-        let slot = *slots.entry(key).or_insert_with(|| {
-            members.push(Vec::new());
-            members.len() - 1
-        });
-        members[slot].push(i);
+        let next = sizes.len();
+        let slot = *slots.entry(key).or_insert(next);
+        if slot == next {
+            sizes.push(0);
+        }
+        sizes[slot] += 1;
+        slot_of.push(slot);
+    }
+    let mut starts = Vec::with_capacity(sizes.len() + 1);
+    starts.push(0);
+    for size in &sizes {
+        starts.push(starts[starts.len() - 1] + size);
+    }
+    let mut order = vec![0usize; g.len()];
+    let mut fill = starts.clone();
+    for (i, &slot) in slot_of.iter().enumerate() {
+        order[fill[slot]] = i;
+        fill[slot] += 1;
     }
     let mut out = Gaussians::with_dims(g.embedding_dim, g.extra_dim);
-    for group in members {
-        // Weights: opacity, with a floor so fully transparent groups still average.
-        let weights: Vec<f32> = group
-            .iter()
-            .map(|&i| g.opacities[i].max(0.0) + 1e-6)
-            .collect();
-        let total: f32 = weights.iter().sum();
-        let mean = group
-            .iter()
-            .zip(&weights)
-            .map(|(&i, w)| g.means[i] * *w)
-            .sum::<Vec3>()
-            / total;
-        let color = group
-            .iter()
-            .zip(&weights)
-            .map(|(&i, w)| g.colors[i] * *w)
-            .sum::<Vec3>()
-            / total;
-        let mut embedding = vec![0.0; g.embedding_dim];
-        let mut extra = vec![0.0; g.extra_dim];
-        for (&i, w) in group.iter().zip(&weights) {
+    let (mut embedding, mut extra) = (vec![0.0; g.embedding_dim], vec![0.0; g.extra_dim]);
+    // Weights: opacity, with a floor so fully transparent groups still average.
+    let weight = |i: usize| g.opacities[i].max(0.0) + 1e-6;
+    for bounds in starts.windows(2) {
+        let group = &order[bounds[0]..bounds[1]];
+        let total: f32 = group.iter().map(|&i| weight(i)).sum();
+        let mean = group.iter().map(|&i| g.means[i] * weight(i)).sum::<Vec3>() / total;
+        let color = group.iter().map(|&i| g.colors[i] * weight(i)).sum::<Vec3>() / total;
+        embedding.fill(0.0);
+        extra.fill(0.0);
+        for &i in group {
+            let w = weight(i);
             for (e, v) in embedding.iter_mut().zip(g.embedding(i)) {
                 *e += v * w / total;
             }
@@ -468,6 +475,44 @@ mod tests {
         assert!(voxel_downsample(&Gaussians::default(), 0.1)
             .unwrap()
             .is_empty());
+    }
+
+    #[test]
+    fn voxels_come_in_the_order_of_their_first_point_whatever_the_interleaving() {
+        // Points of three voxels interleaved (b, a, b, c, a, b): each voxel averages its own
+        // points, the voxels come out in the order their first point came, and the rotation is
+        // the most opaque point's, the first of equals.
+        let mut g = Gaussians::with_dims(1, 0);
+        let points = [
+            (Vec3::new(1.01, 0.0, 0.0), 0.5, 1.0),
+            (Vec3::new(0.01, 0.0, 0.0), 0.9, 2.0),
+            (Vec3::new(1.03, 0.0, 0.0), 0.5, 3.0),
+            (Vec3::new(2.05, 0.0, 0.0), 0.2, 4.0),
+            (Vec3::new(0.03, 0.0, 0.0), 0.9, 6.0),
+            (Vec3::new(1.05, 0.0, 0.0), 0.5, 5.0),
+        ];
+        for (k, &(mean, opacity, embedding)) in points.iter().enumerate() {
+            let rotation = Quat::from_rotation_z(k as f32 * 0.1);
+            g.push(
+                mean,
+                opacity,
+                Vec3::splat(0.01),
+                rotation,
+                Vec3::ONE,
+                &[embedding],
+                &[],
+            );
+        }
+        let d = voxel_downsample(&g, 0.1).unwrap();
+        assert_eq!(d.len(), 3);
+        assert!((d.means[0] - Vec3::new(1.03, 0.0, 0.0)).length() < 1e-5);
+        assert!((d.means[1] - Vec3::new(0.02, 0.0, 0.0)).length() < 1e-5);
+        assert!((d.means[2] - Vec3::new(2.05, 0.0, 0.0)).length() < 1e-5);
+        assert!((d.embeddings[0] - 3.0).abs() < 1e-5);
+        assert!((d.embeddings[1] - 4.0).abs() < 1e-5);
+        assert_eq!(d.opacities, [0.5, 0.9, 0.2]);
+        assert!(d.rotations[0].angle_between(Quat::from_rotation_z(0.0)) < 1e-5);
+        assert!(d.rotations[1].angle_between(Quat::from_rotation_z(0.1)) < 1e-5);
     }
 
     #[test]
