@@ -533,7 +533,7 @@ pub fn pass_with_cache(
         &mut labels,
         &gaussians.means,
         cell,
-        grouping.hdbscan.min_cluster_size,
+        cleaning.min_part_points,
     );
     mark_dropped(&before, &labels, &mut why, Unassigned::Speck);
     if let Some(floor) = floor_height(&gaussians.means) {

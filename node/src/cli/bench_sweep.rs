@@ -22,6 +22,8 @@ pub struct Setting {
     /// HDBSCAN runs on at most this many Gaussians (an even stride), the rest are assigned.
     pub max_cluster_points: usize,
     pub min_cluster_size: usize,
+    /// HDBSCAN's neighbours that define a point's core distance.
+    pub min_samples: usize,
     /// Reconstruction model manifest, relative to `models/`.
     pub model: &'static str,
     /// ONNX Runtime's idle threads spin (`models.intra_op_spinning`).
@@ -41,6 +43,7 @@ impl Setting {
             views: groupforward::window::WindowSection::default().views,
             max_cluster_points: grouping.max_cluster_points,
             min_cluster_size: grouping.hdbscan.min_cluster_size,
+            min_samples: grouping.hdbscan.min_samples,
             model: RGBD,
             spinning: groupforward::model::ModelsSection::default().intra_op_spinning,
             features_ahead: groupforward::window::WindowSection::default().features_ahead,
@@ -73,6 +76,13 @@ pub fn settings(quick: bool) -> Vec<Setting> {
         Setting::with("subsample_8k_min_15", |s| {
             s.max_cluster_points = 8_000;
             s.min_cluster_size = 15;
+        }),
+        // Half the default's subsample (16,384 of ~49k Gaussians) with both density parameters
+        // halved too, so the clusters are judged at the same density.
+        Setting::with("subsample_8k_scaled", |s| {
+            s.max_cluster_points = 8_192;
+            s.min_cluster_size = 15;
+            s.min_samples = 5;
         }),
         Setting::with("subsample_40k", |s| s.max_cluster_points = 40_000),
         Setting::with("min_cluster_15", |s| s.min_cluster_size = 15),
@@ -160,6 +170,7 @@ pub fn sweep(files: &[SceneFile], quick: bool, rounds: usize, out: &Path) -> Res
         };
         models.grouping.max_cluster_points = setting.max_cluster_points;
         models.grouping.hdbscan.min_cluster_size = setting.min_cluster_size;
+        models.grouping.hdbscan.min_samples = setting.min_samples;
         let bar = progress_bar(
             recorded.len() as u64,
             &format!("{} (round {})", setting.name, round + 1),
@@ -207,7 +218,7 @@ pub fn sweep(files: &[SceneFile], quick: bool, rounds: usize, out: &Path) -> Res
 
 fn csv(points: &[Point], rounds: usize) -> String {
     let mut out = String::from(
-        "setting,views,max_cluster_points,min_cluster_size,model,intra_op_spinning,features_ahead,windows,window_p50_ms,window_p99_ms",
+        "setting,views,max_cluster_points,min_cluster_size,min_samples,model,intra_op_spinning,features_ahead,windows,window_p50_ms,window_p99_ms",
     );
     for stage in Stage::WINDOW_PASS {
         out.push_str(&format!(",{}_p50_ms", stage.name()));
@@ -217,11 +228,12 @@ fn csv(points: &[Point], rounds: usize) -> String {
         let s = p.scored.total.summary();
         let window = p.stage(Stage::Window);
         out.push_str(&format!(
-            "{},{},{},{},{},{},{},{},{:.2},{:.2}",
+            "{},{},{},{},{},{},{},{},{},{:.2},{:.2}",
             p.setting.name,
             p.setting.views,
             p.setting.max_cluster_points,
             p.setting.min_cluster_size,
+            p.setting.min_samples,
             p.setting.model.trim_end_matches(".toml"),
             p.setting.spinning,
             p.setting.features_ahead,
@@ -273,7 +285,7 @@ fn pareto_front(points: &[Point]) -> Vec<usize> {
 fn markdown(points: &[Point], scenes: usize, threads: usize, quick: bool, rounds: usize) -> String {
     let front = pareto_front(points);
     let mut md = format!(
-        "Accuracy against time: each setting replays the same {scenes} recorded benchmark scene(s) through the node's stages (every window, as `eval map` does) and scores the final map. Window = model pass to map update, {threads} threads; p50 / p99 over all windows of {rounds} round(s), the settings taking turns; windows = per round. Settings with more than 4 views take keyframes proportionally closer together (a window spans the same stretch of trajectory, seen by more views). Pareto-optimal settings (no other is both faster and more accurate on recall@0.25) are marked *.\n\n| setting | views | HDBSCAN subsample | min cluster | model | windows | window p50 / p99 (ms) | model | group | semantics | fusion | recall@0.25 | recall@0.5 | precision | duplicates | names | id switches / 100 |\n| --- | ---: | ---: | ---: | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |\n"
+        "Accuracy against time: each setting replays the same {scenes} recorded benchmark scene(s) through the node's stages (every window, as `eval map` does) and scores the final map. Window = model pass to map update, {threads} threads; p50 / p99 over all windows of {rounds} round(s), the settings taking turns; windows = per round. Settings with more than 4 views take keyframes proportionally closer together (a window spans the same stretch of trajectory, seen by more views). Pareto-optimal settings (no other is both faster and more accurate on recall@0.25) are marked *.\n\n| setting | views | HDBSCAN subsample | min cluster / samples | model | windows | window p50 / p99 (ms) | model | group | semantics | fusion | recall@0.25 | recall@0.5 | precision | duplicates | names | id switches / 100 |\n| --- | ---: | ---: | ---: | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |\n"
     );
     for (i, p) in points.iter().enumerate() {
         let s = p.scored.total.summary();
@@ -283,12 +295,13 @@ fn markdown(points: &[Point], scenes: usize, threads: usize, quick: bool, rounds
         };
         let window = p.stage(Stage::Window);
         md.push_str(&format!(
-            "| {}{} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {:.1}% | {:.1}% | {:.1}% | {:.1}% | {:.1}% | {:.2} |\n",
+            "| {}{} | {} | {} | {} / {} | {} | {} | {} | {} | {} | {} | {} | {:.1}% | {:.1}% | {:.1}% | {:.1}% | {:.1}% | {:.2} |\n",
             p.setting.name,
             if front.contains(&i) { " *" } else { "" },
             p.setting.views,
             p.setting.max_cluster_points,
             p.setting.min_cluster_size,
+            p.setting.min_samples,
             p.setting.model.trim_end_matches(".toml"),
             window.map_or(0, |w| w.count / rounds as u64),
             window.map_or("no window".to_owned(), |w| format!(

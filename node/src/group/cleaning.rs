@@ -23,8 +23,11 @@ pub struct CleaningParams {
     /// Gaussians less opaque than this are not grouped.
     pub min_opacity: f32,
     /// Voxel size of the connectivity grid (metres): points in touching voxels (26-neighbourhood)
-    /// are connected. Components smaller than HDBSCAN's `min_cluster_size` are noise.
+    /// are connected.
     pub cell: f32,
+    /// Components of fewer points than this are specks (noise). A count of all of the window's
+    /// points, so it does not follow HDBSCAN's `min_cluster_size`, which counts its subsample.
+    pub min_part_points: usize,
     /// Support bleed: the height of an instance's bottom slab (metres) and how far outside the
     /// footprint of the instance above it a slab point may lie before it counts as the surface
     /// the object stands on (see [`drop_support_bleed`]).
@@ -38,6 +41,7 @@ impl Default for CleaningParams {
             flying_ratio: 0.1,
             min_opacity: 0.05,
             cell: 0.12,
+            min_part_points: 30,
             support_slab: 0.05,
             support_margin: 0.05,
         }
