@@ -49,7 +49,7 @@ bench: setup
 	$(CARGO) run --release -p groupforward -- bench graph --out node/doc/bench/graph
 	$(CARGO) run --release -p groupforward -- bench refer --out node/doc/bench/refer
 
-# What accuracy costs in time: the settings sweep the README's Pareto chart comes from (~10 min).
+# What accuracy costs in time: the settings sweep the README's Pareto chart comes from (~20 min).
 sweep: setup
 	$(CARGO) run -p groupforward -- bench sweep --rounds 2 --out node/doc/bench/sweep
 
