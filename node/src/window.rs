@@ -519,14 +519,15 @@ pub fn pass_with_cache(
     // The grid must be coarser than a pixel's footprint on the surface, or neighbouring pixels of
     // one surface fall apart (small model resolutions, far surfaces).
     let mut depths: Vec<f32> = pixels.iter().map(|&p| prediction.depth[p]).collect();
-    depths.sort_by(f32::total_cmp);
     let focal = frames
         .iter()
         .map(|f| resized_camera(&f.camera, w, h).fx)
         .fold(f64::INFINITY, f64::min);
-    let footprint = depths
-        .get(depths.len() / 2)
-        .map_or(0.0, |&d| f64::from(d) / focal) as f32;
+    // The median depth (the element a sort would put in the middle, without the sort).
+    let middle = depths.len() / 2;
+    let footprint = (middle < depths.len())
+        .then(|| *depths.select_nth_unstable_by(middle, f32::total_cmp).1)
+        .map_or(0.0, |d| f64::from(d) / focal) as f32;
     let cell = cleaning.cell.max(3.0 * footprint);
     let before = labels.clone();
     let clusters = split_components(
