@@ -23,7 +23,7 @@ use crate::group::cleaning::{
     CleaningParams,
 };
 use crate::group::semantics::{
-    prototypes, LabelledView, SemanticsSection, Vocabulary, OTHER_PHRASE,
+    prototypes, KindMemo, LabelledView, SemanticsSection, Vocabulary, OTHER_PHRASE,
 };
 use crate::group::{group, GroupError, GroupingParams};
 use crate::model::manifest::InputMode;
@@ -881,7 +881,10 @@ impl WindowModels {
         stamp_nanos: i64,
     ) -> Result<FusionReport, GraphError> {
         match &self.vocabulary {
-            Some(v) => map.fuse_named(instances, views, stamp_nanos, |a, b| v.same_kind(a, b)),
+            Some(v) => {
+                let kinds = KindMemo::new(v);
+                map.fuse_named(instances, views, stamp_nanos, |a, b| kinds.same_kind(a, b))
+            }
             None => map.fuse(instances, views, stamp_nanos),
         }
     }

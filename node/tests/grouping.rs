@@ -385,6 +385,23 @@ fn same_kind_means_the_same_best_name_and_never_structure() {
     );
     assert!(!v.same_kind(&[], &[0.9, 0.1, 0.0]), "no semantics");
     assert!(!v.same_kind(&[0.0, 0.0, 0.0], &[0.0, 0.0, 0.0]));
+    // The memo answers as the vocabulary does, asked again and in either order.
+    let prototypes: [&[f32]; 6] = [
+        &[0.9, 0.1, 0.0],
+        &[0.7, 0.3, 0.1],
+        &[0.1, 0.9, 0.0],
+        &[0.0, 0.1, 0.9],
+        &[],
+        &[0.0, 0.0, 0.0],
+    ];
+    let memo = groupforward::group::semantics::KindMemo::new(&v);
+    for _ in 0..2 {
+        for a in prototypes {
+            for b in prototypes {
+                assert_eq!(memo.same_kind(a, b), v.same_kind(a, b), "{a:?} {b:?}");
+            }
+        }
+    }
 }
 
 #[test]
