@@ -9,8 +9,9 @@ use std::time::{Duration, Instant};
 pub enum Stage {
     /// Decode, validate and sync one message (node loop).
     Ingest,
-    /// The semantic model on one keyframe, run when the keyframe arrives and the worker is idle
-    /// (outside every window's time: the window then only pools the cached features).
+    /// The semantic model on one keyframe and its per-pixel classes, run when the keyframe
+    /// arrives and the worker is idle (outside every window's time: the window then only pools
+    /// the cached features).
     Keyframe,
     /// The reconstruction model's forward pass, inputs and outputs included (the semantic
     /// features of views not computed ahead run beside it, sharing the cores).

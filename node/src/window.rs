@@ -34,6 +34,7 @@ use crate::model::semantic::{DenseFeatures, SemanticModel};
 use crate::model::text::TextEncoder;
 use crate::model::{ModelError, ModelsSection};
 use crate::recon::gaussians::Gaussians;
+use crate::recon::metrics::sample_nearest;
 use crate::timing::{Stage, StageTimes};
 
 #[derive(Debug, thiserror::Error)]
@@ -745,17 +746,7 @@ fn instance_prototypes_of(
         .enumerate()
         .map(|(v, KeyframeFeatures { features: f, .. })| {
             let view = &pixel_labels[v * width * height..(v + 1) * width * height];
-            let mut out = Vec::with_capacity(f.width * f.height);
-            for fy in 0..f.height {
-                let y = (((fy as f64 + 0.5) * height as f64 / f.height as f64) as usize)
-                    .min(height - 1);
-                for fx in 0..f.width {
-                    let x = (((fx as f64 + 0.5) * width as f64 / f.width as f64) as usize)
-                        .min(width - 1);
-                    out.push(view[y * width + x]);
-                }
-            }
-            out
+            sample_nearest(view, (width, height), (f.width, f.height))
         })
         .collect();
     let views: Vec<LabelledView<'_>> = sampled

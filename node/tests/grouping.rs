@@ -270,6 +270,17 @@ mod semantics {
             features: &[f32::NAN, 0.0, 0.0, 0.0],
         }];
         assert!(prototypes(&bad, 2, 3).is_err());
+        // A non-finite feature no instance covers (view a's unlabelled pixel) harms nothing.
+        let mut stray = features_a;
+        stray[3] = f32::NAN;
+        stray[7] = f32::INFINITY;
+        let unharmed = [LabelledView {
+            labels: &labels_a,
+            features: &stray,
+        }];
+        let (protos, _) = prototypes(&unharmed, 2, 3).unwrap();
+        assert_eq!(protos[0], vec![2.0, 0.0]);
+        assert_eq!(protos[1], vec![0.0, 2.0]);
         let short = [LabelledView {
             labels: &labels_b,
             features: &[0.0; 3],

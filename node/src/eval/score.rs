@@ -151,7 +151,7 @@ pub struct ObjectTrace {
 }
 
 /// The stages that can leave a pixel in no window instance ([`crate::window::Unassigned`]).
-pub const UNASSIGNED_REASONS: usize = 6;
+pub const UNASSIGNED_REASONS: usize = crate::window::Unassigned::ALL.len();
 
 /// A window instance that covers an object's pixels at this IoU or more grouped it as itself.
 pub const PIXEL_FOUND_IOU: f64 = 0.5;

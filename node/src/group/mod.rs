@@ -84,11 +84,12 @@ pub fn normalize_rows(values: &mut [f32], dims: usize) {
 
 /// Euclidean (ℓ2) distance between two embeddings of equal length.
 pub fn embedding_distance(a: &[f32], b: &[f32]) -> f32 {
-    a.iter()
-        .zip(b)
-        .map(|(x, y)| (x - y) * (x - y))
-        .sum::<f32>()
-        .sqrt()
+    squared_embedding_distance(a, b).sqrt()
+}
+
+/// The square of [`embedding_distance`] (enough to rank, without the root).
+pub fn squared_embedding_distance(a: &[f32], b: &[f32]) -> f32 {
+    a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum()
 }
 
 /// Assignment probabilities of one embedding to `centroids`, numerically stable for any τ > 0
@@ -193,11 +194,7 @@ pub fn group(
         .map(|row| {
             let mut nearest = (-1i32, f32::INFINITY);
             for (k, centroid) in centroids.iter().enumerate() {
-                let d2: f32 = centroid
-                    .iter()
-                    .zip(row)
-                    .map(|(c, v)| (c - v) * (c - v))
-                    .sum();
+                let d2 = squared_embedding_distance(centroid, row);
                 if d2 < nearest.1 {
                     nearest = (k as i32, d2);
                 }
