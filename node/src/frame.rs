@@ -63,6 +63,9 @@ pub struct Keyframe {
 pub struct WindowView {
     pub keyframe: Keyframe,
     pub depth: Vec<f32>,
+    /// The sensor's depth noise at 1 m (m), measured on the view's full-resolution depth image
+    /// ([`crate::recon::depth_noise`]); `None` without depth or where it is too small to measure.
+    pub depth_noise_at_1m: Option<f32>,
 }
 
 /// Resample an image taken by a distorted `camera` into its undistorted pinhole camera

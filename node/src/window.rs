@@ -33,6 +33,7 @@ use crate::model::reconstruction::{
 use crate::model::semantic::{DenseFeatures, SemanticModel};
 use crate::model::text::TextEncoder;
 use crate::model::{ModelError, ModelsSection};
+use crate::recon::depth_noise;
 use crate::recon::gaussians::Gaussians;
 use crate::recon::metrics::sample_nearest;
 use crate::timing::{Stage, StageTimes};
@@ -640,6 +641,12 @@ pub fn pass_with_cache(
                 world_from_camera: f.world_from_camera,
             },
             depth: prediction.depth[v * w * h..(v + 1) * w * h].to_vec(),
+            // At the sensor's resolution: the model's resampling spaces samples unevenly, which
+            // a slanted surface turns into second differences that are not noise.
+            depth_noise_at_1m: f
+                .depth
+                .as_ref()
+                .and_then(|d| depth_noise::noise_at_1m([(d.metres.as_slice(), d.width as usize)])),
         })
         .collect();
     Ok(WindowOutput {

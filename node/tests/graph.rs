@@ -43,6 +43,7 @@ fn view(eye: DVec3, stamp: i64, depth: f32) -> WindowView {
     WindowView {
         keyframe: keyframe(eye, stamp),
         depth: vec![depth; 64 * 48],
+        depth_noise_at_1m: None,
     }
 }
 
@@ -193,6 +194,48 @@ fn an_object_the_camera_still_sees_in_place_lives_although_no_window_groups_it()
             .died;
     }
     assert_eq!((died, map.instances.len()), (1, 0));
+}
+
+#[test]
+fn a_far_object_seen_through_depth_noise_lives_but_free_space_beyond_the_noise_kills_it() {
+    // A chair 4 m ahead under a depth camera with 6 mm noise at 1 m (σ 9.6 cm there). Windows
+    // that do not group it observe depth 15 cm behind its points (about 1.5 σ of the difference
+    // of two noisy depths): noise, not free space, once the noise is measured. Without a
+    // measurement the fixed 10 cm tolerance counts it as free space and the chair dies.
+    let params = FusionParams::default();
+    let noisy = |stamp: i64, depth: f32, noise: Option<f32>| WindowView {
+        depth_noise_at_1m: noise,
+        ..view(DVec3::ZERO, stamp, depth)
+    };
+    let chair = || WindowInstance {
+        gaussians: cuboid(Vec3::new(4.0, 0.0, 0.0), Vec3::new(0.02, 0.2, 0.2)),
+        prototype: CHAIR.to_vec(),
+        support: 50,
+    };
+    let surface = 4.0 - 0.02 + 0.15;
+    for (noise, survives) in [(Some(0.006), true), (None, false)] {
+        let mut map = SceneMap::new(params);
+        map.fuse(vec![chair()], &[noisy(1, 3.98, noise)], 1)
+            .unwrap();
+        let died: usize = (2..8)
+            .map(|stamp| {
+                map.fuse(Vec::new(), &[noisy(stamp, surface, noise)], stamp)
+                    .unwrap()
+                    .died
+            })
+            .sum();
+        assert_eq!(map.instances.len() == 1, survives, "noise {noise:?}");
+        assert_eq!(died, usize::from(!survives));
+    }
+    // Far beyond the noise (the wall 2 m behind it) is free space, measured noise or not.
+    let mut map = SceneMap::new(params);
+    map.fuse(vec![chair()], &[noisy(1, 3.98, Some(0.006))], 1)
+        .unwrap();
+    for stamp in 2..8 {
+        map.fuse(Vec::new(), &[noisy(stamp, 6.0, Some(0.006))], stamp)
+            .unwrap();
+    }
+    assert!(map.instances.is_empty());
 }
 
 #[test]

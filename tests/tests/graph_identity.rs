@@ -76,6 +76,7 @@ fn run(file: SceneFile, window_every: usize) -> (usize, BTreeMap<u16, Vec<String
                 world_from_camera,
             },
             depth: view.truth.depth.clone(),
+            depth_noise_at_1m: None,
         }];
         let report = map.fuse(window, &views, stamp).unwrap();
         for (gt, persistent) in order.iter().zip(report.assigned) {

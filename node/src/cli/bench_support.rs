@@ -45,6 +45,7 @@ pub(crate) fn bench_views() -> Result<Vec<groupforward::frame::WindowView>> {
                 ),
             },
             depth: vec![100.0; 128 * 96],
+            depth_noise_at_1m: None,
         })
         .collect())
 }

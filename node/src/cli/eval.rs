@@ -18,6 +18,7 @@ use groupforward::eval::score::{
 };
 use groupforward::ingest::DepthValidity;
 use groupforward::model::ModelsSection;
+use groupforward::recon::depth_noise;
 use groupforward::timing::{describe, summarise, Stage, StageSummary, StageTimes};
 use groupforward::window::WindowModels;
 use groupforward_sim::effects::Preset;
@@ -107,6 +108,8 @@ pub struct Scored {
     pub depth: DepthValidity,
     pub model_pixels_without_depth: u64,
     pub lifted_at_model_depth: u64,
+    /// Per window, the depth noise at 1 m measured on its views.
+    pub depth_noise_at_1m: Vec<Option<f32>>,
 }
 
 /// Replay each scene through the node's stages with `window_models` and score its map, with a
@@ -160,6 +163,8 @@ impl Scored {
         self.depth.add(&run.depth);
         self.model_pixels_without_depth += run.model_pixels_without_depth;
         self.lifted_at_model_depth += run.lifted_at_model_depth;
+        self.depth_noise_at_1m
+            .extend(run.depth_noise_at_1m.iter().copied());
         self.per_scene
             .push((run.scene.clone(), counts, run.windows.len()));
     }
@@ -212,7 +217,10 @@ pub fn eval_map(
         depth,
         model_pixels_without_depth,
         lifted_at_model_depth,
+        depth_noise_at_1m,
     } = score_scenes(files, &config, &mut window_models, "eval map")?;
+    let noise_at_1m = depth_noise::median_measured(depth_noise_at_1m.iter().copied());
+    let noise_windows = depth_noise_at_1m.iter().flatten().count();
     let summary = total.summary();
     let scene_counts: Vec<Counts> = per_scene.iter().map(|(_, c, _)| *c).collect();
     let spread = intervals(&scene_counts);
@@ -324,6 +332,8 @@ pub fn eval_map(
             "isolated": depth.isolated,
             "model_pixels_without_sensor_depth": model_pixels_without_depth,
             "lifted_at_model_depth": lifted_at_model_depth,
+            "noise_at_1m_m": noise_at_1m,
+            "noise_measured_windows": noise_windows,
         },
         "window_millis": {
             "p50": window.map_or(0.0, |w| w.p50_ms),
@@ -371,6 +381,11 @@ pub fn eval_map(
         depth.isolated,
         model_pixels_without_depth,
         lifted_at_model_depth
+    );
+    println!(
+        "depth noise at 1 m: {} ({noise_windows} of {} windows measured it; it grows with range²)",
+        noise_at_1m.map_or("none measured".to_owned(), |n| format!("{:.1} mm", n * 1e3)),
+        depth_noise_at_1m.len()
     );
     println!(
         "window pass to map update: {}; wrote {}",

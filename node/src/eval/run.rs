@@ -22,6 +22,7 @@ use crate::graph::{GraphError, SceneMap};
 use crate::ingest::{DepthValidity, Ingest};
 use crate::node::Node;
 use crate::recon::boxes::{OrientedBox, DEFAULT_TRIM};
+use crate::recon::depth_noise;
 use crate::recon::metrics::{object_coverage, sample_nearest, ObjectCoverage};
 use crate::timing::{Stage, StageTimes};
 use crate::window::{Unassigned, WindowError, WindowModels, WindowOutput};
@@ -58,6 +59,8 @@ pub struct SceneRun {
     /// lifted at the model's own depth because a measured neighbour agrees.
     pub model_pixels_without_depth: u64,
     pub lifted_at_model_depth: u64,
+    /// Per window, the depth noise at 1 m its views measured (median; `None` where none did).
+    pub depth_noise_at_1m: Vec<Option<f32>>,
     /// The final map (what referring queries are asked on).
     pub map: SceneMap,
 }
@@ -227,6 +230,7 @@ pub fn replay_scene_with(
     let mut windows = Vec::new();
     let mut window_times = Vec::new();
     let (mut model_pixels_without_depth, mut lifted_at_model_depth) = (0u64, 0u64);
+    let mut depth_noise_at_1m = Vec::new();
     let mut ahead = Vec::new();
     models.set_views(config.window.views);
     let mut stream =
@@ -275,6 +279,9 @@ pub fn replay_scene_with(
             model_pixels_without_depth +=
                 (output.invalid_depth_pixels + output.model_depth_pixels) as u64;
             lifted_at_model_depth += output.model_depth_pixels as u64;
+            depth_noise_at_1m.push(depth_noise::median_measured(
+                output.views.iter().map(|v| v.depth_noise_at_1m),
+            ));
             on_window(&frames, &output, models)?;
             let pixel_instances = std::mem::take(&mut output.pixel_instances);
             let model_size = output.views.first().map_or((0, 0), |v| {
@@ -326,6 +333,7 @@ pub fn replay_scene_with(
         depth,
         model_pixels_without_depth,
         lifted_at_model_depth,
+        depth_noise_at_1m,
         map,
     })
 }

@@ -8,6 +8,7 @@
 
 pub mod boxes;
 pub mod camera;
+pub mod depth_noise;
 pub mod gauge;
 pub mod gaussians;
 pub mod metrics;
