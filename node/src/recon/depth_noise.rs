@@ -42,7 +42,9 @@ pub fn noise_at_1m<'a>(images: impl IntoIterator<Item = (&'a [f32], usize)>) -> 
         if width < 3 {
             continue;
         }
-        for row in depth.chunks_exact(width) {
+        // Every other row: ~38,000 triples of a 320 × 240 image are plenty for a median, at
+        // half the cost (0.7 ms a view on 2 cores).
+        for row in depth.chunks_exact(width).step_by(2) {
             for t in row.windows(3) {
                 let (a, z, b) = (t[0], t[1], t[2]);
                 let valid = |d: f32| d.is_finite() && d > 0.0;
