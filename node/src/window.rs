@@ -35,6 +35,7 @@ use crate::model::text::TextEncoder;
 use crate::model::{ModelError, ModelsSection};
 use crate::recon::depth_noise;
 use crate::recon::gaussians::Gaussians;
+use crate::recon::median;
 use crate::recon::metrics::sample_nearest;
 use crate::timing::{Stage, StageTimes};
 
@@ -525,11 +526,7 @@ pub fn pass_with_cache(
         .iter()
         .map(|f| resized_camera(&f.camera, w, h).fx)
         .fold(f64::INFINITY, f64::min);
-    // The median depth (the element a sort would put in the middle, without the sort).
-    let middle = depths.len() / 2;
-    let footprint = (middle < depths.len())
-        .then(|| *depths.select_nth_unstable_by(middle, f32::total_cmp).1)
-        .map_or(0.0, |d| f64::from(d) / focal) as f32;
+    let footprint = median(&mut depths).map_or(0.0, |d| f64::from(d) / focal) as f32;
     let cell = cleaning.cell.max(3.0 * footprint);
     let before = labels.clone();
     let clusters = split_components(

@@ -14,6 +14,7 @@ use rustc_hash::FxHashMap;
 use glam::Vec3;
 
 use crate::recon::boxes::{OrientedBox, DEFAULT_TRIM};
+use crate::recon::median;
 
 /// Defaults, chosen on the benchmark split's map evaluation (`groupforward eval map`).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -246,9 +247,7 @@ pub fn floor_height(points: &[Vec3]) -> Option<f32> {
         lo + (band as f32 + 2.0) * BAND,
     );
     let mut near: Vec<f32> = z.into_iter().filter(|v| (from..to).contains(v)).collect();
-    let middle = near.len() / 2;
-    let (_, &mut median, _) = near.select_nth_unstable_by(middle, f32::total_cmp);
-    Some(median)
+    median(&mut near)
 }
 
 /// Drop, from each of `clusters` clusters that stands on the floor (its lowest points within

@@ -19,6 +19,8 @@
 //! saw only partly (bins, plants, lamps) shrank further (21 down): recall@0.25 / @0.5 / precision
 //! 67.8 / 44.1 / 78.3% -> 68.2 / 43.7 / 78.8%, with a cap at half the extent 68.2 / 43.3 / 78.8%.
 
+use super::median;
+
 /// Below this (m at 1 m range) the depth counts as noise-free: the second differences of a
 /// rendered or filtered image's smooth and curved surfaces, not noise (the clean simulator's
 /// views measure up to 1.2e-4; the `realistic` preset's camera 6.0e-3 against its 6e-3; consumer
@@ -37,6 +39,7 @@ const SECOND_DIFFERENCE_SPREAD: f32 = 2.449_489_7;
 /// `None` when fewer than [`MIN_SAMPLES`] triples of valid pixels exist or the noise is below
 /// [`MIN_NOISE_AT_1M`].
 pub fn noise_at_1m<'a>(images: impl IntoIterator<Item = (&'a [f32], usize)>) -> Option<f32> {
+    let valid = |d: f32| d.is_finite() && d > 0.0;
     let mut scaled = Vec::new();
     for (depth, width) in images {
         if width < 3 {
@@ -47,7 +50,6 @@ pub fn noise_at_1m<'a>(images: impl IntoIterator<Item = (&'a [f32], usize)>) -> 
         for row in depth.chunks_exact(width).step_by(2) {
             for t in row.windows(3) {
                 let (a, z, b) = (t[0], t[1], t[2]);
-                let valid = |d: f32| d.is_finite() && d > 0.0;
                 if valid(a) && valid(z) && valid(b) {
                     scaled.push(((a - 2.0 * z + b) / (z * z)).abs());
                 }
@@ -57,9 +59,7 @@ pub fn noise_at_1m<'a>(images: impl IntoIterator<Item = (&'a [f32], usize)>) -> 
     if scaled.len() < MIN_SAMPLES {
         return None;
     }
-    let middle = scaled.len() / 2;
-    let (_, median, _) = scaled.select_nth_unstable_by(middle, f32::total_cmp);
-    let sigma = MAD_TO_SIGMA * *median / SECOND_DIFFERENCE_SPREAD;
+    let sigma = MAD_TO_SIGMA * median(&mut scaled)? / SECOND_DIFFERENCE_SPREAD;
     (sigma.is_finite() && sigma >= MIN_NOISE_AT_1M).then_some(sigma)
 }
 
@@ -67,11 +67,7 @@ pub fn noise_at_1m<'a>(images: impl IntoIterator<Item = (&'a [f32], usize)>) -> 
 /// run); `None` when none was measured.
 pub fn median_measured(measurements: impl IntoIterator<Item = Option<f32>>) -> Option<f32> {
     let mut measured: Vec<f32> = measurements.into_iter().flatten().collect();
-    if measured.is_empty() {
-        return None;
-    }
-    let middle = measured.len() / 2;
-    Some(*measured.select_nth_unstable_by(middle, f32::total_cmp).1)
+    median(&mut measured)
 }
 
 #[cfg(test)]

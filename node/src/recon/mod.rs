@@ -17,6 +17,13 @@ pub mod round;
 
 use glam::{DMat3, DQuat, DVec3};
 
+/// The median of `values` (the upper one of an even count: the element a sort would put at
+/// `len / 2`), found by selection, which reorders `values`; `None` when empty.
+pub fn median(values: &mut [f32]) -> Option<f32> {
+    let middle = values.len() / 2;
+    (middle < values.len()).then(|| *values.select_nth_unstable_by(middle, f32::total_cmp).1)
+}
+
 /// A rigid transform (rotation then translation).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Rigid {
@@ -77,5 +84,19 @@ impl Rigid {
 
     pub fn is_finite(&self) -> bool {
         self.rotation.is_finite() && self.translation.is_finite()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::median;
+
+    #[test]
+    fn the_median_is_the_middle_rank_of_a_sort_and_none_when_empty() {
+        assert_eq!(median(&mut [3.0, 1.0, 2.0]), Some(2.0));
+        // Even counts take the upper of the two middle values, as `sorted[len / 2]` does.
+        assert_eq!(median(&mut [4.0, 1.0, 3.0, 2.0]), Some(3.0));
+        assert_eq!(median(&mut [7.5]), Some(7.5));
+        assert_eq!(median(&mut []), None);
     }
 }
