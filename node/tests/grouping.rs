@@ -7,7 +7,7 @@ use groupforward::group::blobs::blobs;
 use groupforward::group::hdbscan::{hdbscan, HdbscanParams};
 use groupforward::group::{
     assignment_probabilities, embedding_distance, group, merge_close_clusters, GroupError,
-    GroupingParams,
+    Grouping, GroupingParams,
 };
 use groupforward::recon::metrics::adjusted_rand_index;
 
@@ -207,6 +207,67 @@ fn grouping_assigns_every_embedding_and_marks_zero_vectors_noise() {
         }
     )
     .is_err());
+}
+
+/// The default grouping of 8-d `points` without its residual pass, and with it.
+fn without_and_with_the_residual_pass(points: &[f32]) -> (Grouping, Grouping) {
+    let first_only = GroupingParams {
+        residual: None,
+        ..GroupingParams::default()
+    };
+    (
+        group(points, 8, &first_only).unwrap(),
+        group(points, 8, &GroupingParams::default()).unwrap(),
+    )
+}
+
+#[test]
+fn small_objects_left_as_noise_by_the_first_pass_become_instances_in_the_residual_pass() {
+    // Four large objects and two of 24 and 20 embeddings: fewer than the first pass's
+    // min_cluster_size (30), so HDBSCAN calls them noise; the second pass over the noise alone
+    // finds each.
+    let (mut points, _) = blobs(4000, 8, 4, 0.3, 21);
+    let (small, _) = blobs(44, 8, 2, 0.3, 22);
+    points.extend_from_slice(&small);
+    let (before, after) = without_and_with_the_residual_pass(&points);
+    assert!(before.labels[4000..].iter().all(|&l| l == -1));
+    // blobs() interleaves its centres: even rows are the first small object, odd the second.
+    let (a, b) = (after.labels[4000], after.labels[4001]);
+    let first_new = before.centroids.len() as i32;
+    assert!(
+        a >= first_new && b >= first_new && a != b,
+        "two new instances"
+    );
+    for (k, &label) in after.labels[4000..].iter().enumerate() {
+        assert_eq!(label, if k % 2 == 0 { a } else { b });
+    }
+    // The first pass's instances are untouched, and nothing else joins the new ones.
+    assert_eq!(after.labels[..4000], before.labels[..4000]);
+    assert_eq!(
+        after.centroids[..before.centroids.len()],
+        before.centroids[..]
+    );
+    assert_eq!(after.labels.iter().filter(|&&l| l >= first_new).count(), 44);
+}
+
+#[test]
+fn scattered_noise_stays_noise_in_the_residual_pass() {
+    // What the first pass leaves is a lone small object, or scattered points: the second pass may
+    // take the whole residual for one cluster, which keeps its place only if min_cluster_size
+    // points lie within the noise distance of it.
+    let (mut points, _) = blobs(3000, 8, 3, 0.3, 23);
+    let (scattered, _) = blobs(60, 8, 60, 0.3, 24);
+    points.extend_from_slice(&scattered);
+    let (before, after) = without_and_with_the_residual_pass(&points);
+    assert_eq!(after, before);
+    // A lone small object among them is found.
+    let (small, _) = blobs(20, 8, 1, 0.2, 25);
+    points.extend_from_slice(&small);
+    let after = group(&points, 8, &GroupingParams::default()).unwrap();
+    assert_eq!(after.centroids.len(), before.centroids.len() + 1);
+    let label = after.labels[3060];
+    assert!(after.labels[3060..].iter().all(|&l| l == label));
+    assert_eq!(after.labels.iter().filter(|&&l| l == label).count(), 20);
 }
 
 #[test]

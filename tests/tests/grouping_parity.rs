@@ -10,8 +10,9 @@ use groupforward::group::{group, GroupingParams};
 use groupforward_tests::{root, venv_python};
 
 /// Unit 8-d embeddings: seven tight clusters of different sizes on the sphere, two of them 0.29
-/// apart (one instance split in two density modes: the merge step must join them), and scattered
-/// points far from every cluster (noise by the distance threshold). A fixed LCG keeps them the same
+/// apart (one instance split in two density modes: the merge step must join them), a small object
+/// of 20 (too few for the first pass: the residual pass finds it), and scattered points far from
+/// every cluster (noise by the distance threshold). A fixed LCG keeps them the same
 /// everywhere.
 fn embeddings() -> Vec<f32> {
     let mut state = 0x2545_f491_4f6c_dd1du64;
@@ -37,9 +38,13 @@ fn embeddings() -> Vec<f32> {
     let mut twin = centres[0].clone();
     twin[7] += 0.6;
     centres.push(unit(twin));
+    centres.push(unit(
+        (0..8).map(|d| if d < 2 { -1.0 } else { 0.0 }).collect(),
+    ));
     let mut out = Vec::new();
     for (k, centre) in centres.iter().enumerate() {
-        for _ in 0..(120 + 60 * k) {
+        let members = if k == 7 { 20 } else { 120 + 60 * k };
+        for _ in 0..members {
             let point: Vec<f32> = centre
                 .iter()
                 .map(|c| c + 0.03 * (uniform() - 0.5))
@@ -95,10 +100,11 @@ fn the_python_grouping_in_train_gives_the_node_s_labels() {
         );
     }
     assert_eq!(forward.get(&-1), Some(&-1), "noise is noise in both");
-    // The fixture exercises what it claims: six instances after the twin modes merge, and noise.
+    // The fixture exercises what it claims: six instances after the twin modes merge, a seventh
+    // from the residual pass, and noise.
     assert_eq!(
         rust.centroids.len(),
-        6,
+        7,
         "{} instances",
         rust.centroids.len()
     );

@@ -9,6 +9,9 @@ MAX_CLUSTER_POINTS = 20_000
 # min_cluster_size, min_samples, noise distance, merge distance: chosen together on the 24 selection
 # windows (train/README.md), as the node's GroupingParams::default.
 GROUPING = (30, 10, 0.7, 0.4)
+# The second pass over what the first left as noise (GroupingParams::residual): min_cluster_size and
+# min_samples; a cluster of it is kept only with min_cluster_size members within the noise distance.
+RESIDUAL = (15, 5)
 
 
 def unit_centroids(embeddings, labels, ids):
@@ -38,22 +41,45 @@ def merge_close_clusters(sums, merge_distance):
     return np.stack(centroids)
 
 
-def node_grouping(embeddings, grouping=GROUPING):
-    """Labels per row of unit `embeddings` [N,D] as node/src/group `group` computes them; and
-    HDBSCAN's own labels on the subsample with the subsample's indices."""
-    min_cluster_size, min_samples, noise_distance, merge_distance = grouping
-    n = embeddings.shape[0]
-    stride = max(1, -(-n // MAX_CLUSTER_POINTS))
-    sample = np.arange(0, n, stride)
+def cluster_and_assign(embeddings, members, density, allow_single_cluster, noise_distance, merge_distance):
+    """node/src/group `cluster_and_assign`: HDBSCAN on an even stride through the rows `members` of
+    the unit `embeddings`, close clusters merged, then each member's nearest centroid (or -1 beyond
+    the noise distance). Returns the members' labels, the centroids, HDBSCAN's labels and the
+    subsample's indices."""
+    min_cluster_size, min_samples = density
+    stride = max(1, -(-len(members) // MAX_CLUSTER_POINTS))
+    sample = members[::stride]
+    if len(sample) < min_cluster_size:  # no cluster can form (hdbscan itself refuses so few)
+        return np.full(len(members), -1), np.zeros((0, embeddings.shape[1])), np.full(len(sample), -1), sample
     raw = hdbscan.HDBSCAN(min_cluster_size=int(min_cluster_size), min_samples=int(min_samples),
-                          allow_single_cluster=True).fit_predict(embeddings[sample].astype(np.float64))
+                          allow_single_cluster=allow_single_cluster).fit_predict(
+                              embeddings[sample].astype(np.float64))
     clusters = np.unique(raw[raw >= 0])
     if clusters.size == 0:
-        return np.full(n, -1), raw, sample
+        return np.full(len(members), -1), np.zeros((0, embeddings.shape[1])), raw, sample
     sums = [embeddings[sample][raw == k].sum(0) for k in clusters]
     centroids = merge_close_clusters(sums, merge_distance)
+    e = embeddings[members]
     distances = np.sqrt(np.maximum(
-        (embeddings ** 2).sum(1)[:, None] - 2 * embeddings @ centroids.T + (centroids ** 2).sum(1)[None], 0))
+        (e ** 2).sum(1)[:, None] - 2 * e @ centroids.T + (centroids ** 2).sum(1)[None], 0))
     nearest = distances.argmin(1)
-    labels = np.where(distances[np.arange(n), nearest] <= noise_distance, nearest, -1)
+    labels = np.where(distances[np.arange(len(members)), nearest] <= noise_distance, nearest, -1)
+    return labels, centroids, raw, sample
+
+
+def node_grouping(embeddings, grouping=GROUPING, residual=RESIDUAL):
+    """Labels per row of unit `embeddings` [N,D] as node/src/group `group` computes them (the
+    second pass over the first's noise when `residual` is not None); and the first HDBSCAN's own
+    labels on its subsample with the subsample's indices."""
+    min_cluster_size, min_samples, noise_distance, merge_distance = grouping
+    everything = np.arange(embeddings.shape[0])
+    labels, centroids, raw, sample = cluster_and_assign(
+        embeddings, everything, (min_cluster_size, min_samples), True, noise_distance, merge_distance)
+    if residual is not None:
+        noise = everything[labels < 0]
+        more, extra, _, _ = cluster_and_assign(embeddings, noise, residual, True, noise_distance, merge_distance)
+        counts = np.bincount(more[more >= 0], minlength=len(extra))
+        kept = counts >= residual[0]
+        renamed = np.where(kept, len(centroids) + np.cumsum(kept) - 1, -1)
+        labels[noise] = np.where(more >= 0, renamed[np.maximum(more, 0)], -1)
     return labels, raw, sample
