@@ -7,7 +7,7 @@ use groupforward::group::blobs::blobs;
 use groupforward::group::hdbscan::{hdbscan, HdbscanParams};
 use groupforward::group::{
     assignment_probabilities, embedding_distance, group, merge_close_clusters, GroupError,
-    Grouping, GroupingParams,
+    Grouping, GroupingParams, ResidualPass,
 };
 use groupforward::recon::metrics::adjusted_rand_index;
 
@@ -209,15 +209,18 @@ fn grouping_assigns_every_embedding_and_marks_zero_vectors_noise() {
     .is_err());
 }
 
-/// The default grouping of 8-d `points` without its residual pass, and with it.
-fn without_and_with_the_residual_pass(points: &[f32]) -> (Grouping, Grouping) {
-    let first_only = GroupingParams {
-        residual: None,
+fn with_the_residual_pass() -> GroupingParams {
+    GroupingParams {
+        residual: Some(ResidualPass::default()),
         ..GroupingParams::default()
-    };
+    }
+}
+
+/// The default grouping of 8-d `points` (no residual pass), and with the residual pass.
+fn without_and_with_the_residual_pass(points: &[f32]) -> (Grouping, Grouping) {
     (
-        group(points, 8, &first_only).unwrap(),
         group(points, 8, &GroupingParams::default()).unwrap(),
+        group(points, 8, &with_the_residual_pass()).unwrap(),
     )
 }
 
@@ -263,7 +266,7 @@ fn scattered_noise_stays_noise_in_the_residual_pass() {
     // A lone small object among them is found.
     let (small, _) = blobs(20, 8, 1, 0.2, 25);
     points.extend_from_slice(&small);
-    let after = group(&points, 8, &GroupingParams::default()).unwrap();
+    let after = group(&points, 8, &with_the_residual_pass()).unwrap();
     assert_eq!(after.centroids.len(), before.centroids.len() + 1);
     let label = after.labels[3060];
     assert!(after.labels[3060..].iter().all(|&l| l == label));

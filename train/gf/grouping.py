@@ -9,9 +9,6 @@ MAX_CLUSTER_POINTS = 20_000
 # min_cluster_size, min_samples, noise distance, merge distance: chosen together on the 24 selection
 # windows (train/README.md), as the node's GroupingParams::default.
 GROUPING = (30, 10, 0.7, 0.4)
-# The second pass over what the first left as noise (GroupingParams::residual): min_cluster_size and
-# min_samples; a cluster of it is kept only with min_cluster_size members within the noise distance.
-RESIDUAL = (15, 5)
 
 
 def unit_centroids(embeddings, labels, ids):
@@ -67,9 +64,10 @@ def cluster_and_assign(embeddings, members, density, allow_single_cluster, noise
     return labels, centroids, raw, sample
 
 
-def node_grouping(embeddings, grouping=GROUPING, residual=RESIDUAL):
-    """Labels per row of unit `embeddings` [N,D] as node/src/group `group` computes them (the
-    second pass over the first's noise when `residual` is not None); and the first HDBSCAN's own
+def node_grouping(embeddings, grouping=GROUPING, residual=None):
+    """Labels per row of unit `embeddings` [N,D] as node/src/group `group` computes them (with the
+    node's optional ResidualPass when `residual` is (min_cluster_size, min_samples, noise
+    distance)); and the first HDBSCAN's own
     labels on its subsample with the subsample's indices."""
     min_cluster_size, min_samples, noise_distance, merge_distance = grouping
     everything = np.arange(embeddings.shape[0])
@@ -77,9 +75,11 @@ def node_grouping(embeddings, grouping=GROUPING, residual=RESIDUAL):
         embeddings, everything, (min_cluster_size, min_samples), True, noise_distance, merge_distance)
     if residual is not None:
         noise = everything[labels < 0]
-        more, extra, _, _ = cluster_and_assign(embeddings, noise, residual, True, noise_distance, merge_distance)
+        size, samples, residual_distance = residual
+        more, extra, _, _ = cluster_and_assign(embeddings, noise, (size, samples), True, residual_distance,
+                                               merge_distance)
         counts = np.bincount(more[more >= 0], minlength=len(extra))
-        kept = counts >= residual[0]
+        kept = counts >= size
         renamed = np.where(kept, len(centroids) + np.cumsum(kept) - 1, -1)
         labels[noise] = np.where(more >= 0, renamed[np.maximum(more, 0)], -1)
     return labels, raw, sample

@@ -30,6 +30,8 @@ pub struct Setting {
     pub spinning: bool,
     /// Keyframes' semantic features computed on arrival (`window.features_ahead`).
     pub features_ahead: bool,
+    /// A second HDBSCAN over the first one's noise (`group::ResidualPass`).
+    pub residual: Option<groupforward::group::ResidualPass>,
 }
 
 const RGBD: &str = "groupforward-mini-rgbd.toml";
@@ -47,6 +49,7 @@ impl Setting {
             model: RGBD,
             spinning: groupforward::model::ModelsSection::default().intra_op_spinning,
             features_ahead: groupforward::window::WindowSection::default().features_ahead,
+            residual: grouping.residual,
         }
     }
 
@@ -87,6 +90,9 @@ pub fn settings(quick: bool) -> Vec<Setting> {
         Setting::with("subsample_40k", |s| s.max_cluster_points = 40_000),
         Setting::with("min_cluster_15", |s| s.min_cluster_size = 15),
         Setting::with("min_cluster_60", |s| s.min_cluster_size = 60),
+        Setting::with("residual_pass", |s| {
+            s.residual = Some(groupforward::group::ResidualPass::default());
+        }),
         Setting::with("rgb_model", |s| s.model = RGB),
         // The shipped default before its speed work (2026-11-25), side by side with it.
         Setting::with("ort_spinning", |s| s.spinning = true),
@@ -171,6 +177,7 @@ pub fn sweep(files: &[SceneFile], quick: bool, rounds: usize, out: &Path) -> Res
         models.grouping.max_cluster_points = setting.max_cluster_points;
         models.grouping.hdbscan.min_cluster_size = setting.min_cluster_size;
         models.grouping.hdbscan.min_samples = setting.min_samples;
+        models.grouping.residual = setting.residual;
         let bar = progress_bar(
             recorded.len() as u64,
             &format!("{} (round {})", setting.name, round + 1),
