@@ -38,7 +38,7 @@ def merge_close_clusters(sums, merge_distance):
     return np.stack(centroids)
 
 
-def cluster_and_assign(embeddings, members, density, allow_single_cluster, noise_distance, merge_distance):
+def cluster_and_assign(embeddings, members, density, noise_distance, merge_distance):
     """node/src/group `cluster_and_assign`: HDBSCAN on an even stride through the rows `members` of
     the unit `embeddings`, close clusters merged, then each member's nearest centroid (or -1 beyond
     the noise distance). Returns the members' labels, the centroids, HDBSCAN's labels and the
@@ -49,8 +49,7 @@ def cluster_and_assign(embeddings, members, density, allow_single_cluster, noise
     if len(sample) < min_cluster_size:  # no cluster can form (hdbscan itself refuses so few)
         return np.full(len(members), -1), np.zeros((0, embeddings.shape[1])), np.full(len(sample), -1), sample
     raw = hdbscan.HDBSCAN(min_cluster_size=int(min_cluster_size), min_samples=int(min_samples),
-                          allow_single_cluster=allow_single_cluster).fit_predict(
-                              embeddings[sample].astype(np.float64))
+                          allow_single_cluster=True).fit_predict(embeddings[sample].astype(np.float64))
     clusters = np.unique(raw[raw >= 0])
     if clusters.size == 0:
         return np.full(len(members), -1), np.zeros((0, embeddings.shape[1])), raw, sample
@@ -66,18 +65,16 @@ def cluster_and_assign(embeddings, members, density, allow_single_cluster, noise
 
 def node_grouping(embeddings, grouping=GROUPING, residual=None):
     """Labels per row of unit `embeddings` [N,D] as node/src/group `group` computes them (with the
-    node's optional ResidualPass when `residual` is (min_cluster_size, min_samples, noise
-    distance)); and the first HDBSCAN's own
-    labels on its subsample with the subsample's indices."""
+    node's optional ResidualPass when `residual` is (min_cluster_size, min_samples, noise distance));
+    and the first HDBSCAN's own labels on its subsample with the subsample's indices."""
     min_cluster_size, min_samples, noise_distance, merge_distance = grouping
     everything = np.arange(embeddings.shape[0])
     labels, centroids, raw, sample = cluster_and_assign(
-        embeddings, everything, (min_cluster_size, min_samples), True, noise_distance, merge_distance)
+        embeddings, everything, (min_cluster_size, min_samples), noise_distance, merge_distance)
     if residual is not None:
         noise = everything[labels < 0]
         size, samples, residual_distance = residual
-        more, extra, _, _ = cluster_and_assign(embeddings, noise, (size, samples), True, residual_distance,
-                                               merge_distance)
+        more, extra, _, _ = cluster_and_assign(embeddings, noise, (size, samples), residual_distance, merge_distance)
         counts = np.bincount(more[more >= 0], minlength=len(extra))
         kept = counts >= size
         renamed = np.where(kept, len(centroids) + np.cumsum(kept) - 1, -1)

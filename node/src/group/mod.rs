@@ -190,15 +190,16 @@ pub fn merge_close_clusters(mut sums: Vec<Vec<f32>>, merge_distance: f32) -> Vec
     }
 }
 
-/// HDBSCAN on (an even stride through) the unit embeddings `members`, close clusters merged, then
-/// each member labelled with its nearest centroid (an index into the returned centroids) unless
-/// it is farther than the noise distance. Labels of other embeddings are left as they are.
+/// HDBSCAN with `density` on (an even stride of at most `params.max_cluster_points` through) the
+/// unit embeddings `members`, close clusters merged, then each member labelled with its nearest
+/// centroid (an index into the returned centroids) unless it is farther than `noise_distance`.
+/// Labels of other embeddings are left as they are.
 fn cluster_and_assign(
     unit: &[f32],
     dims: usize,
     members: &[usize],
     params: &GroupingParams,
-    density: &HdbscanParams,
+    (density, noise_distance): (&HdbscanParams, f32),
     labels: &mut [i32],
 ) -> Result<Vec<Vec<f32>>, GroupError> {
     if members.is_empty() {
@@ -226,7 +227,7 @@ fn cluster_and_assign(
     // Each embedding goes to its nearest centroid, the argmax of the assignment softmax for any
     // τ (the exponentials themselves were most of this loop's time), unless it is farther than
     // the noise distance.
-    let noise_distance2 = params.noise_distance * params.noise_distance;
+    let noise_distance2 = noise_distance * noise_distance;
     for &i in members {
         let row = &unit[i * dims..(i + 1) * dims];
         let mut nearest = (-1i32, f32::INFINITY);
@@ -269,21 +270,12 @@ pub fn group(
     let n = unit.len() / dims;
     let everything: Vec<usize> = (0..n).collect();
     let mut labels = vec![-1i32; n];
-    let mut centroids = cluster_and_assign(
-        &unit,
-        dims,
-        &everything,
-        params,
-        &params.hdbscan,
-        &mut labels,
-    )?;
+    let first = (&params.hdbscan, params.noise_distance);
+    let mut centroids = cluster_and_assign(&unit, dims, &everything, params, first, &mut labels)?;
     if let Some(residual) = &params.residual {
         let noise: Vec<usize> = (0..n).filter(|&i| labels[i] < 0).collect();
-        let tight = GroupingParams {
-            noise_distance: residual.noise_distance,
-            ..*params
-        };
-        let more = cluster_and_assign(&unit, dims, &noise, &tight, &residual.density, &mut labels)?;
+        let second = (&residual.density, residual.noise_distance);
+        let more = cluster_and_assign(&unit, dims, &noise, params, second, &mut labels)?;
         // The residual may hold one small object among scattered points, which only a root
         // cluster can take; a cluster keeps its place only if at least min_cluster_size
         // embeddings lie within the noise distance of it (a root over scattered points does not).
