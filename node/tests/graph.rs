@@ -6,6 +6,7 @@ use glam::{DQuat, DVec3, Quat, Vec3};
 use groupforward::frame::{Keyframe, WindowInstance, WindowView};
 use groupforward::graph::persist::{self, PersistError};
 use groupforward::graph::{FusionParams, SceneMap};
+use groupforward::recon::boxes::OrientedBox;
 use groupforward::recon::camera::Camera;
 use groupforward::recon::gaussians::Gaussians;
 use groupforward::recon::Rigid;
@@ -236,6 +237,85 @@ fn a_far_object_seen_through_depth_noise_lives_but_free_space_beyond_the_noise_k
             .unwrap();
     }
     assert!(map.instances.is_empty());
+}
+
+#[test]
+fn a_face_seen_through_range_noise_gets_the_box_of_its_surface_and_a_clean_one_its_points() {
+    // A cabinet's front 3 m ahead (0.8 m wide, 1.6 m high, in the plane x = 3), measured three
+    // times through 6 mm noise at 1 m: σ 5.4 cm along the view, so its points form a slab
+    // ±11 cm deep. The box is fitted to the surface they agree on; without a measured noise
+    // (a clean camera) to the points as they are.
+    use rand::SeedableRng;
+    use rand_distr::{Distribution, Normal};
+    let sigma = 0.006 * 3.0 * 3.0;
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+    let noise = Normal::new(0.0f32, sigma).unwrap();
+    let mut face = Gaussians::with_dims(0, 0);
+    for _ in 0..3 {
+        for i in 0..16 {
+            for k in 0..32 {
+                let mean = Vec3::new(
+                    3.0 + noise.sample(&mut rng),
+                    -0.4 + i as f32 * 0.05,
+                    k as f32 * 0.05,
+                );
+                face.push(
+                    mean,
+                    1.0,
+                    Vec3::splat(0.01),
+                    Quat::IDENTITY,
+                    Vec3::ONE,
+                    &[],
+                    &[],
+                );
+            }
+        }
+    }
+    let raw_depth = {
+        let xs = face.means.iter().map(|m| m.x);
+        xs.clone().fold(f32::NEG_INFINITY, f32::max) - xs.fold(f32::INFINITY, f32::min)
+    };
+    assert!(raw_depth > 0.3, "{raw_depth}");
+    let mut depths = Vec::new();
+    for measured in [Some(0.006), None] {
+        let mut map = SceneMap::new(FusionParams::default());
+        let seen = WindowView {
+            depth_noise_at_1m: measured,
+            ..view(DVec3::ZERO, 1, 3.0)
+        };
+        let window = WindowInstance {
+            gaussians: face.clone(),
+            prototype: CHAIR.to_vec(),
+            support: 500,
+        };
+        map.fuse(vec![window], &[seen], 1).unwrap();
+        let instance = &map.instances[0];
+        let expected = measured.map_or(0.0, |s| s * 3.0 * 3.0);
+        assert!(
+            (instance.range_noise_m - expected).abs() < 0.01,
+            "{} against {expected}",
+            instance.range_noise_m
+        );
+        let fitted = instance.fitted();
+        assert_eq!(fitted.points, instance.oriented_box());
+        assert_eq!(fitted.surface.is_some(), measured.is_some(), "{fitted:?}");
+        for b in [Some(fitted.points), fitted.surface].into_iter().flatten() {
+            assert!(b.size.is_finite() && b.centre.is_finite());
+            // The face's width and height stay; its depth is what changes.
+            let wide = b.size.x.max(b.size.y);
+            assert!(wide > 0.7 && b.size.z > 1.4, "{b:?}");
+        }
+        let thin = |b: &OrientedBox| b.size.x.min(b.size.y);
+        depths.push((thin(&fitted.points), fitted.surface.as_ref().map(thin)));
+    }
+    let (noisy_points, noisy_surface) = depths[0];
+    let surface = noisy_surface.unwrap();
+    assert!(surface < 0.1, "the surface's box is {surface} m deep");
+    assert!(
+        noisy_points > 0.18,
+        "the points' box is {noisy_points} m deep"
+    );
+    assert_eq!(depths[1].0, noisy_points, "the points' box needs no noise");
 }
 
 #[test]
@@ -751,7 +831,10 @@ fn sample_map() -> SceneMap {
             instance(Vec3::new(4.0, -0.5, 0.2), TABLE),
         ],
         &[
-            view(DVec3::ZERO, 1, 3.0),
+            WindowView {
+                depth_noise_at_1m: Some(0.004),
+                ..view(DVec3::ZERO, 1, 3.0)
+            },
             view(DVec3::new(0.5, 0.0, 0.0), 2, 3.0),
         ],
         2,
@@ -795,6 +878,12 @@ fn save_then_load_gives_the_identical_map_and_graph() {
     assert!(
         (viewpoint - Vec3::new(0.25, 0.0, 0.0)).length() < 1e-6,
         "{viewpoint}"
+    );
+    // So does the range noise it was seen through (the chair's box is fitted to its surface).
+    assert!(loaded.instances[0].range_noise_m > 0.01);
+    assert_eq!(
+        loaded.instances[0].range_noise_m,
+        map.instances[0].range_noise_m
     );
 }
 

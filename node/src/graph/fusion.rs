@@ -12,6 +12,7 @@ use super::error::GraphError;
 use super::instance::{bounds, capped, cosine, FusionParams, Instance};
 use crate::frame::{Keyframe, WindowInstance, WindowView};
 use crate::recon::boxes::OrientedBox;
+use crate::recon::depth_noise::median_measured;
 use crate::recon::gaussians::Gaussians;
 
 /// What one fusion step did.
@@ -365,6 +366,17 @@ impl SceneMap {
     ) -> Result<FusionReport, GraphError> {
         let p = self.params;
         let viewpoint = mean_camera_centre(views);
+        let noise_at_1m = median_measured(views.iter().map(|v| v.depth_noise_at_1m));
+        // The range noise each window instance was measured through: σ₁ · r² at its distance.
+        let range_noise: Vec<Option<f32>> = window
+            .iter()
+            .map(|w| {
+                let centroid =
+                    w.gaussians.means.iter().sum::<Vec3>() / w.gaussians.len().max(1) as f32;
+                let range = viewpoint?.distance(centroid);
+                Some(noise_at_1m? * range * range).filter(|s| s.is_finite())
+            })
+            .collect();
         for (i, w) in window.iter().enumerate() {
             w.gaussians
                 .validate()
@@ -515,6 +527,7 @@ impl SceneMap {
                     matched[j] = true;
                     let m = &mut self.instances[j];
                     m.observe_from(viewpoint, w.gaussians.len() as f32);
+                    m.observe_noise(range_noise[i], w.gaussians.len() as f32);
                     m.merge(&w.gaussians, &w.prototype, w.support.max(1) as f64, p);
                     m.confidence = (m.confidence + p.confirm_gain).min(1.0);
                     m.observations += 1;
@@ -537,8 +550,11 @@ impl SceneMap {
                         last_seen_nanos: stamp_nanos,
                         viewpoint: None,
                         viewpoint_weight: 0.0,
+                        range_noise_m: 0.0,
+                        range_noise_weight: 0.0,
                     };
                     born.observe_from(viewpoint, seen_by);
+                    born.observe_noise(range_noise[i], seen_by);
                     self.instances.push(born);
                     report.born += 1;
                 }

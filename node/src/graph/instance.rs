@@ -5,6 +5,7 @@ use glam::Vec3;
 use crate::recon::boxes::{OrientedBox, DEFAULT_TRIM};
 use crate::recon::gaussians::{voxel_downsample, Gaussians};
 use crate::recon::round::fit_object_box;
+use crate::recon::surface::{thin_to_surfaces, thinning_radius};
 
 /// A persistent instance.
 #[derive(Debug, Clone, PartialEq)]
@@ -23,6 +24,35 @@ pub struct Instance {
     /// without it). A box seen from one side is completed away from it ([`super::amodal`]).
     pub viewpoint: Option<Vec3>,
     pub viewpoint_weight: f32,
+    /// The depth camera's range noise (σ, metres) at the ranges the instance was seen from,
+    /// weighted by the Gaussians each window gave it; 0 where none was measured (a clean or
+    /// unknown camera). Its box is fitted to its points thinned by it ([`crate::recon::surface`]).
+    pub range_noise_m: f32,
+    pub range_noise_weight: f32,
+}
+
+/// Range noise below this (metres) is not thinned: a fifth of the map's 5 cm voxels.
+pub const MIN_THINNED_NOISE_M: f32 = 0.01;
+/// A thinned box deeper than this along both horizontal axes is no face the map completes (the
+/// deepest a name's completion looks for is a third of a bed's 1.55 m).
+const MAX_FACE_DEPTH_M: f64 = 0.6;
+
+/// The boxes fitted to an instance ([`Instance::fitted`]): to its points, and to the surface
+/// they measure where it was seen through range noise.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Fitted {
+    pub points: OrientedBox,
+    pub surface: Option<OrientedBox>,
+}
+
+impl From<OrientedBox> for Fitted {
+    /// A box fitted elsewhere (e.g. already published), without a surface box.
+    fn from(points: OrientedBox) -> Self {
+        Self {
+            points,
+            surface: None,
+        }
+    }
 }
 
 impl Instance {
@@ -39,6 +69,35 @@ impl Instance {
     /// points, completed to the whole circle when they are the seen side of a round object.
     pub fn oriented_box(&self) -> OrientedBox {
         fit_object_box(&self.gaussians.means, DEFAULT_TRIM)
+    }
+
+    /// Its box ([`Instance::oriented_box`]) and, where it was seen through range noise, the box
+    /// of the surface its points measure ([`crate::recon::surface`]): only for boxes thin enough
+    /// along a horizontal axis to be a face once thinned.
+    pub fn fitted(&self) -> Fitted {
+        let points = self.oriented_box();
+        let could_be_a_face = points.size.x.min(points.size.y)
+            <= MAX_FACE_DEPTH_M + 4.0 * f64::from(self.range_noise_m);
+        let surface = thinning_radius(self.range_noise_m)
+            .filter(|_| self.range_noise_m >= MIN_THINNED_NOISE_M && could_be_a_face)
+            .map(|radius| {
+                fit_object_box(
+                    &thin_to_surfaces(&self.gaussians.means, radius),
+                    DEFAULT_TRIM,
+                )
+            });
+        Fitted { points, surface }
+    }
+
+    /// Add `weight` of observations made through range noise `sigma_m` to the weighted mean
+    /// noise; an unmeasured noise (`None`) adds nothing.
+    pub(super) fn observe_noise(&mut self, sigma_m: Option<f32>, weight: f32) {
+        let Some(sigma) = sigma_m.filter(|s| s.is_finite() && *s >= 0.0 && weight > 0.0) else {
+            return;
+        };
+        let total = self.range_noise_weight + weight;
+        self.range_noise_m += (sigma - self.range_noise_m) * (weight / total);
+        self.range_noise_weight = total;
     }
 
     /// Add `weight` of observations made from `viewpoint` to the weighted mean viewpoint.
@@ -91,6 +150,8 @@ impl Instance {
             p,
         );
         self.observe_from(other.viewpoint, other.viewpoint_weight);
+        let measured = (other.range_noise_weight > 0.0).then_some(other.range_noise_m);
+        self.observe_noise(measured, other.range_noise_weight);
         self.confidence = self.confidence.max(other.confidence);
         self.observations += other.observations;
         self.first_seen_nanos = self.first_seen_nanos.min(other.first_seen_nanos);

@@ -19,5 +19,5 @@ pub mod walls;
 
 pub use error::GraphError;
 pub use fusion::{FusionReport, SceneMap};
-pub use instance::{cosine, FusionParams, Instance};
+pub use instance::{cosine, Fitted, FusionParams, Instance};
 pub use scene_graph::{EdgeView, GraphEdge, GraphNode, NodeView, SceneGraph};

@@ -113,6 +113,11 @@ struct InstanceHeader {
     viewpoint: Option<[f32; 3]>,
     #[serde(default)]
     viewpoint_weight: f32,
+    /// Absent from maps saved before the range noise was kept.
+    #[serde(default)]
+    range_noise_m: f32,
+    #[serde(default)]
+    range_noise_weight: f32,
     gaussians: usize,
     embedding_dim: usize,
     extra_dim: usize,
@@ -153,6 +158,8 @@ pub fn to_bytes(map: &SceneMap) -> Vec<u8> {
                 last_seen_nanos: i.last_seen_nanos,
                 viewpoint: i.viewpoint.map(|v| v.to_array()),
                 viewpoint_weight: i.viewpoint_weight,
+                range_noise_m: i.range_noise_m,
+                range_noise_weight: i.range_noise_weight,
                 gaussians: i.gaussians.len(),
                 embedding_dim: i.gaussians.embedding_dim,
                 extra_dim: i.gaussians.extra_dim,
@@ -306,6 +313,16 @@ pub fn from_bytes(bytes: &[u8], params: FusionParams) -> Result<SceneMap, Persis
             last_seen_nanos: h.last_seen_nanos,
             viewpoint: h.viewpoint.map(Vec3::from_array).filter(|v| v.is_finite()),
             viewpoint_weight: h.viewpoint_weight,
+            range_noise_m: if h.range_noise_m.is_finite() {
+                h.range_noise_m.max(0.0)
+            } else {
+                0.0
+            },
+            range_noise_weight: if h.range_noise_weight.is_finite() {
+                h.range_noise_weight.max(0.0)
+            } else {
+                0.0
+            },
         });
     }
     let keyframes = header

@@ -11,6 +11,7 @@
 
 use glam::{DVec2, Vec3};
 
+use super::instance::Fitted;
 use super::{amodal, Instance, SceneMap};
 use crate::group::cleaning::floor_height;
 use crate::group::semantics::Vocabulary;
@@ -277,17 +278,50 @@ pub fn published_box(
 pub fn object_list<'a>(
     map: &'a SceneMap,
     vocabulary: Option<&Vocabulary>,
-    mut fit: impl FnMut(&Instance) -> OrientedBox,
+    mut fit: impl FnMut(&Instance) -> Fitted,
 ) -> Vec<(&'a Instance, OrientedBox)> {
     let walls = std::cell::OnceCell::new();
     map.instances
         .iter()
         .filter(|i| vocabulary.is_none_or(|v| v.is_listed(&i.prototype, i.gaussians.len())))
         .filter_map(|i| {
-            let placed = published_box(fit(i), &walls, map, vocabulary)?;
-            Some((i, seen_from_one_side(placed, i, vocabulary)))
+            let fitted = fit(i);
+            let publish = |b: OrientedBox| {
+                published_box(b, &walls, map, vocabulary)
+                    .map(|placed| seen_from_one_side(placed, i, vocabulary))
+            };
+            // A face seen through range noise is a slab as deep as the noise, which no
+            // completion takes for a face; its surface is completed where a clean camera's
+            // would be. Only for box-like furniture (names with a typical depth), and only that
+            // completion is taken from the surface: planes fitted over a curved object (a bin,
+            // a plant, a pillow) make it smaller than it is, or a slab completed to the wall.
+            let completed_face =
+                fitted
+                    .surface
+                    .filter(|_| box_like(i, vocabulary))
+                    .and_then(|surface| {
+                        publish(surface).filter(|completed| deepened_face(&surface, completed))
+                    });
+            completed_face
+                .or_else(|| publish(fitted.points))
+                .map(|b| (i, b))
         })
         .collect()
+}
+
+/// Whether the instance's best name is one of box-like furniture (one with a typical depth,
+/// [`amodal::typical_depth`]).
+fn box_like(instance: &Instance, vocabulary: Option<&Vocabulary>) -> bool {
+    vocabulary
+        .and_then(|v| v.hypotheses(&instance.prototype, 1).into_iter().next())
+        .is_some_and(|(name, _)| amodal::typical_depth(&name).is_some())
+}
+
+/// Whether `completed` is the vertical face `surface` completed behind it (back to a wall or
+/// to its name's depth): its thinner horizontal side grown, its height as it was.
+fn deepened_face(surface: &OrientedBox, completed: &OrientedBox) -> bool {
+    let thin = |b: &OrientedBox| b.size.x.min(b.size.y);
+    thin(completed) > thin(surface) + 0.01 && (completed.size.z - surface.size.z).abs() < 1e-6
 }
 
 /// `placed` completed away from the instance's viewpoint to its name's typical depth when it is
@@ -429,6 +463,111 @@ mod tests {
         );
         assert!(completed.iou(&fitted) < 0.1, "a different box");
         assert!(completed.centre.is_finite() && completed.size.is_finite());
+    }
+
+    /// An instance of `points` named by `prototype`, seen from `viewpoint` through range noise
+    /// `sigma` (0: a clean camera).
+    fn instance_of(id: &str, points: &[Vec3], prototype: [f32; 3], sigma: f32) -> Instance {
+        let mut gaussians = crate::recon::gaussians::Gaussians::with_dims(0, 0);
+        for p in points {
+            gaussians.push(
+                *p,
+                1.0,
+                Vec3::splat(0.01),
+                glam::Quat::IDENTITY,
+                Vec3::ONE,
+                &[],
+                &[],
+            );
+        }
+        Instance {
+            id: id.into(),
+            gaussians,
+            prototype: prototype.to_vec(),
+            prototype_weight: 1.0,
+            confidence: 1.0,
+            observations: 3,
+            first_seen_nanos: 0,
+            last_seen_nanos: 0,
+            viewpoint: Some(Vec3::new(2.4, 3.5, 1.2)),
+            viewpoint_weight: 1.0,
+            range_noise_m: sigma,
+            range_noise_weight: f32::from(sigma > 0.0),
+        }
+    }
+
+    #[test]
+    fn a_face_seen_through_range_noise_is_completed_from_its_surface_and_a_round_object_keeps_its_points_box(
+    ) {
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, Normal};
+        let vocabulary = Vocabulary {
+            phrases: vec!["cabinet".into(), "plant".into(), "other".into()],
+            embeddings: vec![
+                vec![1.0, 0.0, 0.0],
+                vec![0.0, 1.0, 0.0],
+                vec![0.0, 0.0, 1.0],
+            ],
+            temperature: 0.05,
+        };
+        let sigma = 0.06;
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let noise = Normal::new(0.0f32, sigma).unwrap();
+        // The room of the hidden wall; a cabinet's front at y = 0.5 measured three times along
+        // y; a plant (a ball of 0.2 m radius) in the open, its near side measured the same way.
+        let mut structure = floor();
+        structure.extend(wall_y(0.0, (0.0, 2.0), (0.0, 2.6)));
+        structure.extend(wall_y(0.0, (2.8, 5.0), (0.0, 2.6)));
+        structure.extend(wall_y(0.0, (2.0, 2.8), (1.8, 2.6)));
+        // A face at y = 0.5 over `x` and `z`, measured three times along y.
+        let mut measured_face = |x: (f32, f32), z: (f32, f32)| -> Vec<Vec3> {
+            (0..3)
+                .flat_map(|_| wall_y(0.5, x, z))
+                .map(|p| p + Vec3::Y * noise.sample(&mut rng))
+                .collect()
+        };
+        let front = measured_face((2.0, 2.8), (0.0, 1.8));
+        // And a flat face named by a name with no typical depth (a bin's near side, which the
+        // noise made flat), standing before the wall too.
+        let flat_bin = measured_face((3.4, 3.8), (0.0, 0.6));
+        let mut ball = Vec::new();
+        for _ in 0..3 {
+            for i in 0..24 {
+                for k in 1..12 {
+                    let (a, b) = (i as f32 * std::f32::consts::PI / 24.0, k as f32 * 0.26);
+                    let on = Vec3::new(a.cos() * b.sin(), a.sin() * b.sin(), b.cos()) * 0.2;
+                    ball.push(Vec3::new(1.0, 2.0, 0.6) + on + Vec3::Y * noise.sample(&mut rng));
+                }
+            }
+        }
+        let map = SceneMap {
+            instances: vec![
+                instance_of("room", &structure, [0.0, 0.0, 1.0], 0.0),
+                instance_of("cabinet", &front, [1.0, 0.0, 0.0], sigma),
+                instance_of("plant", &ball, [0.0, 1.0, 0.0], sigma),
+                instance_of("flat", &flat_bin, [0.0, 1.0, 0.0], sigma),
+            ],
+            ..SceneMap::default()
+        };
+        let with_surfaces = object_list(&map, Some(&vocabulary), |i| i.fitted());
+        let points_only = object_list(&map, Some(&vocabulary), |i| i.oriented_box().into());
+        let thin = |b: &OrientedBox| b.size.x.min(b.size.y);
+        assert_eq!((with_surfaces.len(), points_only.len()), (3, 3));
+        let (cabinet, cabinet_points) = (with_surfaces[0].1, points_only[0].1);
+        // The noisy slab is too deep for a face and stays as deep as the noise ...
+        assert!(
+            (0.15..0.4).contains(&thin(&cabinet_points)),
+            "{cabinet_points:?}"
+        );
+        // ... while its surface is completed back to the wall: y from 0 to about 0.5.
+        assert!((thin(&cabinet) - 0.5).abs() < 0.08, "{cabinet:?}");
+        assert!((cabinet.centre.y - 0.25).abs() < 0.06, "{cabinet:?}");
+        assert!(cabinet.centre.is_finite() && cabinet.size.is_finite());
+        // The plant's box is its points' box: no completion, no plane fitted over it; so is
+        // the flat face of a name with no typical depth (no furniture a face stands for).
+        assert_eq!(with_surfaces[1].1, points_only[1].1);
+        assert_eq!(with_surfaces[2].1, points_only[2].1);
+        assert!(thin(&with_surfaces[2].1) < 0.4, "{:?}", with_surfaces[2].1);
     }
 
     #[test]

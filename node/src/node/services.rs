@@ -20,7 +20,7 @@ use super::queue::InputQueue;
 use crate::config::Config;
 use crate::frame::Keyframe;
 use crate::graph::walls::object_list;
-use crate::graph::{persist, SceneMap};
+use crate::graph::{persist, Fitted, SceneMap};
 use crate::group::semantics::Vocabulary;
 use crate::ingest::{Ingest, Route};
 use crate::model::text::TextEncoder;
@@ -103,7 +103,7 @@ pub fn instance_messages(
 /// Fitted boxes by instance id, with the fingerprint of the Gaussians they were fitted to: a
 /// window changes a few instances, so only those are fitted again.
 #[derive(Debug, Clone, Default)]
-pub struct BoxCache(HashMap<String, (Fingerprint, OrientedBox)>);
+pub struct BoxCache(HashMap<String, (Fingerprint, Fitted)>);
 
 /// Count and coordinate sums of an instance's Gaussians: changes whenever they change.
 type Fingerprint = (usize, [u64; 3]);
@@ -133,7 +133,7 @@ pub fn instance_messages_cached(
         let print = fingerprint(&i.gaussians);
         let b = match cache.0.get(&i.id) {
             Some((seen, b)) if *seen == print => *b,
-            _ => i.oriented_box(),
+            _ => i.fitted(),
         };
         fitted.insert(i.id.clone(), (print, b));
         b

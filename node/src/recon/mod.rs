@@ -14,6 +14,7 @@ pub mod gaussians;
 pub mod metrics;
 pub mod raster;
 pub mod round;
+pub mod surface;
 
 use glam::{DMat3, DQuat, DVec3};
 

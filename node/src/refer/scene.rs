@@ -101,10 +101,7 @@ impl ReferScene {
             })
             .unzip();
         let listed: HashMap<String, OrientedBox> = object_list(&map, vocabulary, |i| {
-            boxes
-                .get(&i.id)
-                .copied()
-                .unwrap_or_else(|| i.oriented_box())
+            boxes.get(&i.id).map_or_else(|| i.fitted(), |b| (*b).into())
         })
         .into_iter()
         .map(|(i, b)| (i.id.clone(), b))
