@@ -296,7 +296,7 @@ fn a_face_seen_through_range_noise_gets_the_box_of_its_surface_and_a_clean_one_i
             "{} against {expected}",
             instance.range_noise_m
         );
-        let fitted = instance.fitted();
+        let fitted = instance.fitted(true);
         assert_eq!(fitted.points, instance.oriented_box());
         assert_eq!(fitted.surface.is_some(), measured.is_some(), "{fitted:?}");
         for b in [Some(fitted.points), fitted.surface].into_iter().flatten() {

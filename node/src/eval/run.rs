@@ -390,7 +390,7 @@ fn window_coverage(
 /// name and its box.
 fn listed_instances(map: &SceneMap, models: &WindowModels) -> Vec<ListedInstance> {
     let vocabulary = models.vocabulary.as_ref();
-    object_list(map, vocabulary, |i| i.fitted())
+    object_list(map, vocabulary, |i, box_like| i.fitted(box_like))
         .into_iter()
         .map(|(i, bbox)| {
             let (name, name_score) = vocabulary

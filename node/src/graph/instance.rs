@@ -71,15 +71,17 @@ impl Instance {
         fit_object_box(&self.gaussians.means, DEFAULT_TRIM)
     }
 
-    /// Its box ([`Instance::oriented_box`]) and, where it was seen through range noise, the box
-    /// of the surface its points measure ([`crate::recon::surface`]): only for boxes thin enough
-    /// along a horizontal axis to be a face once thinned.
-    pub fn fitted(&self) -> Fitted {
+    /// Its box ([`Instance::oriented_box`]) and, when `with_surface` asks for it and it was seen
+    /// through range noise, the box of the surface its points measure ([`crate::recon::surface`]):
+    /// only for boxes thin enough along a horizontal axis to be a face once thinned.
+    pub fn fitted(&self, with_surface: bool) -> Fitted {
         let points = self.oriented_box();
         let could_be_a_face = points.size.x.min(points.size.y)
             <= MAX_FACE_DEPTH_M + 4.0 * f64::from(self.range_noise_m);
         let surface = thinning_radius(self.range_noise_m)
-            .filter(|_| self.range_noise_m >= MIN_THINNED_NOISE_M && could_be_a_face)
+            .filter(|_| {
+                with_surface && self.range_noise_m >= MIN_THINNED_NOISE_M && could_be_a_face
+            })
             .map(|radius| {
                 fit_object_box(
                     &thin_to_surfaces(&self.gaussians.means, radius),

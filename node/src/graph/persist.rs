@@ -313,16 +313,8 @@ pub fn from_bytes(bytes: &[u8], params: FusionParams) -> Result<SceneMap, Persis
             last_seen_nanos: h.last_seen_nanos,
             viewpoint: h.viewpoint.map(Vec3::from_array).filter(|v| v.is_finite()),
             viewpoint_weight: h.viewpoint_weight,
-            range_noise_m: if h.range_noise_m.is_finite() {
-                h.range_noise_m.max(0.0)
-            } else {
-                0.0
-            },
-            range_noise_weight: if h.range_noise_weight.is_finite() {
-                h.range_noise_weight.max(0.0)
-            } else {
-                0.0
-            },
+            range_noise_m: finite_or_zero(h.range_noise_m),
+            range_noise_weight: finite_or_zero(h.range_noise_weight),
         });
     }
     let keyframes = header
@@ -352,6 +344,15 @@ pub fn from_bytes(bytes: &[u8], params: FusionParams) -> Result<SceneMap, Persis
         next_id: header.next_id,
         params,
     })
+}
+
+/// `x` where it is finite and not negative (a noise, a weight), else 0 (none measured).
+fn finite_or_zero(x: f32) -> f32 {
+    if x.is_finite() {
+        x.max(0.0)
+    } else {
+        0.0
+    }
 }
 
 fn io(path: &Path) -> impl FnOnce(std::io::Error) -> PersistError + '_ {

@@ -278,14 +278,14 @@ pub fn published_box(
 pub fn object_list<'a>(
     map: &'a SceneMap,
     vocabulary: Option<&Vocabulary>,
-    mut fit: impl FnMut(&Instance) -> Fitted,
+    mut fit: impl FnMut(&Instance, bool) -> Fitted,
 ) -> Vec<(&'a Instance, OrientedBox)> {
     let walls = std::cell::OnceCell::new();
     map.instances
         .iter()
         .filter(|i| vocabulary.is_none_or(|v| v.is_listed(&i.prototype, i.gaussians.len())))
         .filter_map(|i| {
-            let fitted = fit(i);
+            let fitted = fit(i, box_like(i, vocabulary));
             let publish = |b: OrientedBox| {
                 published_box(b, &walls, map, vocabulary)
                     .map(|placed| seen_from_one_side(placed, i, vocabulary))
@@ -295,13 +295,9 @@ pub fn object_list<'a>(
             // would be. Only for box-like furniture (names with a typical depth), and only that
             // completion is taken from the surface: planes fitted over a curved object (a bin,
             // a plant, a pillow) make it smaller than it is, or a slab completed to the wall.
-            let completed_face =
-                fitted
-                    .surface
-                    .filter(|_| box_like(i, vocabulary))
-                    .and_then(|surface| {
-                        publish(surface).filter(|completed| deepened_face(&surface, completed))
-                    });
+            let completed_face = fitted.surface.and_then(|surface| {
+                publish(surface).filter(|completed| deepened_face(&surface, completed))
+            });
             completed_face
                 .or_else(|| publish(fitted.points))
                 .map(|b| (i, b))
@@ -549,8 +545,8 @@ mod tests {
             ],
             ..SceneMap::default()
         };
-        let with_surfaces = object_list(&map, Some(&vocabulary), |i| i.fitted());
-        let points_only = object_list(&map, Some(&vocabulary), |i| i.oriented_box().into());
+        let with_surfaces = object_list(&map, Some(&vocabulary), |i, box_like| i.fitted(box_like));
+        let points_only = object_list(&map, Some(&vocabulary), |i, _| i.oriented_box().into());
         let thin = |b: &OrientedBox| b.size.x.min(b.size.y);
         assert_eq!((with_surfaces.len(), points_only.len()), (3, 3));
         let (cabinet, cabinet_points) = (with_surfaces[0].1, points_only[0].1);

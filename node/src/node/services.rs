@@ -103,7 +103,7 @@ pub fn instance_messages(
 /// Fitted boxes by instance id, with the fingerprint of the Gaussians they were fitted to: a
 /// window changes a few instances, so only those are fitted again.
 #[derive(Debug, Clone, Default)]
-pub struct BoxCache(HashMap<String, (Fingerprint, Fitted)>);
+pub struct BoxCache(HashMap<String, (Fingerprint, bool, Fitted)>);
 
 /// Count and coordinate sums of an instance's Gaussians: changes whenever they change.
 type Fingerprint = (usize, [u64; 3]);
@@ -129,13 +129,13 @@ pub fn instance_messages_cached(
 ) -> Vec<Instance> {
     let mut fitted = HashMap::new();
     // The structure changes with every window: completion is redone, fitting is cached.
-    let listed = object_list(map, vocabulary, |i| {
+    let listed = object_list(map, vocabulary, |i, box_like| {
         let print = fingerprint(&i.gaussians);
         let b = match cache.0.get(&i.id) {
-            Some((seen, b)) if *seen == print => *b,
-            _ => i.fitted(),
+            Some((seen, was_box_like, b)) if (*seen, *was_box_like) == (print, box_like) => *b,
+            _ => i.fitted(box_like),
         };
-        fitted.insert(i.id.clone(), (print, b));
+        fitted.insert(i.id.clone(), (print, box_like, b));
         b
     });
     let messages = listed

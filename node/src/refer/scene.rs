@@ -100,8 +100,10 @@ impl ReferScene {
                 (r.depth, labels)
             })
             .unzip();
-        let listed: HashMap<String, OrientedBox> = object_list(&map, vocabulary, |i| {
-            boxes.get(&i.id).map_or_else(|| i.fitted(), |b| (*b).into())
+        let listed: HashMap<String, OrientedBox> = object_list(&map, vocabulary, |i, box_like| {
+            boxes
+                .get(&i.id)
+                .map_or_else(|| i.fitted(box_like), |b| (*b).into())
         })
         .into_iter()
         .map(|(i, b)| (i.id.clone(), b))
