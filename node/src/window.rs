@@ -201,9 +201,10 @@ pub struct WindowOutput {
     pub semantics_error: Option<String>,
     /// RGB-D: model pixels without valid sensor depth (ingest marked them) that were not lifted.
     pub invalid_depth_pixels: usize,
-    /// RGB-D: model pixels without valid sensor depth lifted at the model's own depth, which a
-    /// measured neighbour agrees with ([`crate::model::reconstruction::MODEL_DEPTH_AGREEMENT`]).
-    pub model_depth_pixels: usize,
+    /// RGB-D: model pixels without valid sensor depth lifted at a measured neighbour's depth,
+    /// where the model's own depth agrees with it
+    /// ([`crate::model::reconstruction::MODEL_DEPTH_AGREEMENT`]).
+    pub neighbour_depth_pixels: usize,
     /// Why the window built nothing (no valid depth in any view); `None` when it ran.
     pub skipped: Option<String>,
     /// Views whose semantic features came computed ahead from the keyframe cache.
@@ -473,7 +474,7 @@ pub fn pass_with_cache(
             .to_gaussians(&prediction, &views)
             .map(|g| (g, invalid, from_model))
     });
-    let (gaussians, invalid_depth_pixels, model_depth_pixels) = lifted?;
+    let (gaussians, invalid_depth_pixels, neighbour_depth_pixels) = lifted?;
     if gaussians.is_empty() {
         return Ok(WindowOutput {
             instances: Vec::new(),
@@ -482,7 +483,7 @@ pub fn pass_with_cache(
             noise: 0,
             semantics_error: None,
             invalid_depth_pixels,
-            model_depth_pixels,
+            neighbour_depth_pixels,
             skipped: Some(format!(
                 "no valid depth in any of the {} views: nothing to lift",
                 frames.len()
@@ -653,7 +654,7 @@ pub fn pass_with_cache(
         noise,
         semantics_error,
         invalid_depth_pixels,
-        model_depth_pixels,
+        neighbour_depth_pixels,
         skipped: None,
         features_cached,
         model_depth,

@@ -85,7 +85,7 @@ fn print_report(report: &DemoReport) {
         );
         if camera.depth_pixels > 0 {
             println!(
-                "  camera {:<8} depth: {} of {} pixels invalid ({:.1}%: no measurement, out of range or isolated), lifted only where the model's depth continues a measured neighbour",
+                "  camera {:<8} depth: {} of {} pixels invalid ({:.1}%: no measurement, out of range or isolated), lifted only where the model's depth continues a measured neighbour, at its depth",
                 camera.name,
                 camera.depth_pixels_invalid,
                 camera.depth_pixels,

@@ -107,7 +107,7 @@ pub struct Scored {
     pub window_times: Vec<StageTimes>,
     pub depth: DepthValidity,
     pub model_pixels_without_depth: u64,
-    pub lifted_at_model_depth: u64,
+    pub lifted_at_neighbour_depth: u64,
     /// Per window, the depth noise at 1 m measured on its views.
     pub depth_noise_at_1m: Vec<Option<f32>>,
 }
@@ -162,7 +162,7 @@ impl Scored {
         self.window_times.extend(run.window_times.iter().cloned());
         self.depth.add(&run.depth);
         self.model_pixels_without_depth += run.model_pixels_without_depth;
-        self.lifted_at_model_depth += run.lifted_at_model_depth;
+        self.lifted_at_neighbour_depth += run.lifted_at_neighbour_depth;
         self.depth_noise_at_1m
             .extend(run.depth_noise_at_1m.iter().copied());
         self.per_scene
@@ -216,7 +216,7 @@ pub fn eval_map(
         window_times,
         depth,
         model_pixels_without_depth,
-        lifted_at_model_depth,
+        lifted_at_neighbour_depth,
         depth_noise_at_1m,
     } = score_scenes(files, &config, &mut window_models, "eval map")?;
     let noise_at_1m = depth_noise::median_measured(depth_noise_at_1m.iter().copied());
@@ -331,7 +331,7 @@ pub fn eval_map(
             "out_of_range": depth.out_of_range,
             "isolated": depth.isolated,
             "model_pixels_without_sensor_depth": model_pixels_without_depth,
-            "lifted_at_model_depth": lifted_at_model_depth,
+            "lifted_at_neighbour_depth": lifted_at_neighbour_depth,
             "noise_at_1m_m": noise_at_1m,
             "noise_measured_windows": noise_windows,
         },
@@ -373,14 +373,14 @@ pub fn eval_map(
     std::fs::write(out.join("summary.md"), &table)?;
     print!("{table}");
     println!(
-        "depth: {:.1}% of {} pixels invalid ({} missing, {} out of range, {} isolated); of {} model pixels without depth, {} lifted at the model's depth (a measured neighbour agrees), the rest not lifted",
+        "depth: {:.1}% of {} pixels invalid ({} missing, {} out of range, {} isolated); of {} model pixels without depth, {} lifted at a measured neighbour's depth (the model's depth agrees with it), the rest not lifted",
         100.0 * invalid_fraction(&depth),
         depth.pixels,
         depth.missing,
         depth.out_of_range,
         depth.isolated,
         model_pixels_without_depth,
-        lifted_at_model_depth
+        lifted_at_neighbour_depth
     );
     println!(
         "depth noise at 1 m: {} ({noise_windows} of {} windows measured it; it grows with range²)",

@@ -58,7 +58,7 @@ pub struct SceneRun {
     /// Window pixels (model resolution) without valid sensor depth, and how many of them were
     /// lifted at the model's own depth because a measured neighbour agrees.
     pub model_pixels_without_depth: u64,
-    pub lifted_at_model_depth: u64,
+    pub lifted_at_neighbour_depth: u64,
     /// Per window, the depth noise at 1 m its views measured (median; `None` where none did).
     pub depth_noise_at_1m: Vec<Option<f32>>,
     /// The final map (what referring queries are asked on).
@@ -229,7 +229,7 @@ pub fn replay_scene_with(
     let mut map = SceneMap::default();
     let mut windows = Vec::new();
     let mut window_times = Vec::new();
-    let (mut model_pixels_without_depth, mut lifted_at_model_depth) = (0u64, 0u64);
+    let (mut model_pixels_without_depth, mut lifted_at_neighbour_depth) = (0u64, 0u64);
     let mut depth_noise_at_1m = Vec::new();
     let mut ahead = Vec::new();
     models.set_views(config.window.views);
@@ -277,8 +277,8 @@ pub fn replay_scene_with(
             }
             let mut output = models.pass(&frames)?;
             model_pixels_without_depth +=
-                (output.invalid_depth_pixels + output.model_depth_pixels) as u64;
-            lifted_at_model_depth += output.model_depth_pixels as u64;
+                (output.invalid_depth_pixels + output.neighbour_depth_pixels) as u64;
+            lifted_at_neighbour_depth += output.neighbour_depth_pixels as u64;
             depth_noise_at_1m.push(depth_noise::median_measured(
                 output.views.iter().map(|v| v.depth_noise_at_1m),
             ));
@@ -332,7 +332,7 @@ pub fn replay_scene_with(
         frames: recorded.frames,
         depth,
         model_pixels_without_depth,
-        lifted_at_model_depth,
+        lifted_at_neighbour_depth,
         depth_noise_at_1m,
         map,
     })
