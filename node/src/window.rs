@@ -460,7 +460,7 @@ pub fn pass_with_cache(
     let lifted = times.time(Stage::Lift, || {
         // RGB-D: geometry from the depth camera (the eval's recall at IoU 0.5 doubles against
         // the model's own depth), instances from the model.
-        let from_model = if model.mode() == InputMode::Rgbd {
+        let from_neighbours = if model.mode() == InputMode::Rgbd {
             use_sensor_depth(&mut prediction, &views)
         } else {
             0
@@ -472,7 +472,7 @@ pub fn pass_with_cache(
             .count();
         model
             .to_gaussians(&prediction, &views)
-            .map(|g| (g, invalid, from_model))
+            .map(|g| (g, invalid, from_neighbours))
     });
     let (gaussians, invalid_depth_pixels, neighbour_depth_pixels) = lifted?;
     if gaussians.is_empty() {

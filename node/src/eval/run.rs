@@ -56,7 +56,7 @@ pub struct SceneRun {
     /// Depth pixels ingest received, and why some were invalid.
     pub depth: DepthValidity,
     /// Window pixels (model resolution) without valid sensor depth, and how many of them were
-    /// lifted at the model's own depth because a measured neighbour agrees.
+    /// lifted at a measured neighbour's depth because the model's depth agrees with it.
     pub model_pixels_without_depth: u64,
     pub lifted_at_neighbour_depth: u64,
     /// Per window, the depth noise at 1 m its views measured (median; `None` where none did).

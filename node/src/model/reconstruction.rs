@@ -190,9 +190,8 @@ fn resize_depth(depth: &DepthImage, width: usize, height: usize) -> Vec<f32> {
 /// `--effects realistic` (recall@0.25 / @0.5 / precision 66.9 / 40.8 / 77.4% for one pixel): 3
 /// pixels 66.5 / 39.2 / 77.3, 8 pixels 69.0 / 39.2 / 79.0, 16 pixels 67.8 / 38.4 / 78.3; it
 /// found some small tables and bins whose every pixel the camera drops, but boxes got worse.
-/// The model's depth decides, but the pixel is lifted at the agreeing neighbour's measurement: 5%
-/// is 17 cm at 3.5 m, and an outline's model depth, between the object and what lies behind it,
-/// spread a cabinet's front 23 cm deep (see [`use_sensor_depth`]).
+/// The model's depth only decides; the pixel is lifted at the neighbour's measurement
+/// ([`use_sensor_depth`]).
 pub const MODEL_DEPTH_AGREEMENT: f32 = 0.05;
 
 /// Replace a prediction's depth by the views' sensor depth at the model resolution (nearest
@@ -211,7 +210,7 @@ pub fn use_sensor_depth(prediction: &mut Prediction, views: &[View<'_>]) -> usiz
     let valid = |z: f32| z.is_finite() && z > 0.0;
     let (w, h) = (prediction.width, prediction.height);
     let plane = w * h;
-    let mut from_model = 0;
+    let mut from_neighbours = 0;
     for (v, view) in views.iter().enumerate().take(prediction.views) {
         let Some(depth) = view.depth else { continue };
         if depth.width == 0 || depth.height == 0 {
@@ -225,6 +224,10 @@ pub fn use_sensor_depth(prediction: &mut Prediction, views: &[View<'_>]) -> usiz
                 continue;
             }
             let model = out[i];
+            if !valid(model) {
+                out[i] = f32::NAN;
+                continue;
+            }
             let (x, y) = (i % w, i / w);
             let agreeing = [
                 (x > 0).then(|| i - 1),
@@ -235,18 +238,18 @@ pub fn use_sensor_depth(prediction: &mut Prediction, views: &[View<'_>]) -> usiz
             .into_iter()
             .flatten()
             .map(|j| sensor[j])
-            .filter(|&z| valid(model) && valid(z) && (z - model).abs() <= MODEL_DEPTH_AGREEMENT * z)
+            .filter(|&z| valid(z) && (z - model).abs() <= MODEL_DEPTH_AGREEMENT * z)
             .min_by(|a, b| (a - model).abs().total_cmp(&(b - model).abs()));
             match agreeing {
                 Some(measured) => {
                     out[i] = measured;
-                    from_model += 1;
+                    from_neighbours += 1;
                 }
                 None => out[i] = f32::NAN,
             }
         }
     }
-    from_model
+    from_neighbours
 }
 
 /// Flat pixel index (view-major, row-major at the model resolution) of every Gaussian that
