@@ -115,17 +115,26 @@ const BACK_RISES_M: f32 = 0.15;
 /// grouping cuts a bed's headboard from its mattress when the pillows between them are their
 /// own instances. Twin beds do not fold: a headboard lies along its own bed's end, beside the
 /// other bed, not along it; a chair behind another has a back as high as its neighbour's.
-pub fn is_back_of(back: (Vec3, Vec3), seat: (Vec3, Vec3)) -> bool {
-    let finite =
-        back.0.is_finite() && back.1.is_finite() && seat.0.is_finite() && seat.1.is_finite();
-    if !finite {
+/// `noise_spread` (m, 0 for a clean camera) is how much thicker than it is the back's bounds
+/// are drawn by range noise: a headboard seen from 5 m through a consumer camera's noise (σ 15
+/// cm) spreads over more than a metre along the view.
+pub fn is_back_of(back: (Vec3, Vec3), seat: (Vec3, Vec3), noise_spread: f32) -> bool {
+    let finite = back.0.is_finite()
+        && back.1.is_finite()
+        && seat.0.is_finite()
+        && seat.1.is_finite()
+        && noise_spread.is_finite();
+    if !finite || noise_spread < 0.0 {
         return false;
     }
     let size = back.1 - back.0;
     // The back's thin axis is its normal; its length runs along the other.
     let (normal, along) = if size.x <= size.y { (0, 1) } else { (1, 0) };
     let length = size[along];
-    let thin = size[normal] <= BACK_MAX_THICKNESS_M && length >= 2.0 * size[normal];
+    // The noise may make a back look deeper than it is, never longer than it is deep: a blob
+    // no longer than its noisy depth stays no back.
+    let thickness = (size[normal] - noise_spread).max(0.0);
+    let thin = thickness <= BACK_MAX_THICKNESS_M && length >= 2.0 * size[normal];
     let beside = (back.1[along].min(seat.1[along]) - back.0[along].max(seat.0[along])).max(0.0);
     let side = seat.1[along] - seat.0[along];
     let alongside = length > 0.0 && beside >= BACK_ALONG_SHARE * length.min(side);
@@ -209,9 +218,32 @@ struct Footprints {
     voxel: f32,
     built: Vec<Option<Footprint>>,
     bounds: Vec<(Vec3, Vec3)>,
+    /// [`Footprints::back_bounds`] of instances seen through range noise, on first use.
+    spread: Vec<Option<(Vec3, Vec3)>>,
 }
 
+/// Share of an instance's points left out on each side of each axis by the bounds
+/// [`Footprints::back_bounds`] judges a noisy back by, and the width of a normal distribution's
+/// interval between those shares, in σ: 5% each side, ±1.645 σ.
+const BACK_SPREAD_SHARE: f32 = 0.05;
+const BACK_SPREAD_SIGMAS: f32 = 3.29;
+
 impl Footprints {
+    /// The bounds [`is_back_of`] judges instance `k` as a back by, with the spread range noise
+    /// adds to them along the view: its bounds for a clean camera; seen through range noise
+    /// (σ measured), the bounds of its points' 5th to 95th percentiles per axis (a few points
+    /// drawn 3 σ out by the noise would set the bounds) and that interval's width of a normal
+    /// distribution of σ.
+    fn back_bounds(&mut self, instances: &[Instance], k: usize) -> ((Vec3, Vec3), f32) {
+        let sigma = instances[k].range_noise_m;
+        if !(sigma.is_finite() && sigma > 0.0) {
+            return (self.bounds[k], 0.0);
+        }
+        let spread = *self.spread[k]
+            .get_or_insert_with(|| share_bounds(&instances[k].gaussians.means, BACK_SPREAD_SHARE));
+        (spread, BACK_SPREAD_SIGMAS * sigma)
+    }
+
     /// Whether instances `a` and `b` lie so far apart that neither their footprints overlap nor
     /// boxes fitted to their points (as they were when `bounds` were taken) intersect. A box
     /// fitted at any yaw to points within bounds of diagonal d lies within 1.75 d of the bounds'
@@ -240,6 +272,26 @@ impl Footprints {
             _ => 0.0,
         }
     }
+}
+
+/// Per axis, the bounds between the `share` and 1 − `share` quantiles of the finite `points`
+/// (nearest rank); empty bounds (+∞, −∞) without finite points.
+fn share_bounds(points: &[Vec3], share: f32) -> (Vec3, Vec3) {
+    let finite: Vec<Vec3> = points.iter().copied().filter(|p| p.is_finite()).collect();
+    let (mut lo, mut hi) = (Vec3::INFINITY, Vec3::NEG_INFINITY);
+    if finite.is_empty() {
+        return (lo, hi);
+    }
+    let last = finite.len() - 1;
+    let low_rank = ((share * last as f32).round() as usize).min(last);
+    let high_rank = last - low_rank;
+    for axis in 0..3 {
+        let mut values: Vec<f32> = finite.iter().map(|p| p[axis]).collect();
+        values.sort_unstable_by(f32::total_cmp);
+        lo[axis] = values[low_rank];
+        hi[axis] = values[high_rank];
+    }
+    (lo, hi)
 }
 
 /// Points hashed into cells of one radius, for "nearest point within the radius" queries.
@@ -660,7 +712,9 @@ impl SceneMap {
             if pa.is_empty() || pb.is_empty() || !same_kind(pa, pb) {
                 return false;
             }
-            if is_back_of(bounds_a, bounds_b) || is_back_of(bounds_b, bounds_a) {
+            let (back_a, spread_a) = footprints.back_bounds(instances, a);
+            let (back_b, spread_b) = footprints.back_bounds(instances, b);
+            if is_back_of(back_a, bounds_b, spread_a) || is_back_of(back_b, bounds_a, spread_b) {
                 return true;
             }
             cosine(pa, pb) >= p.duplicate_similarity
@@ -693,6 +747,7 @@ impl SceneMap {
                 .iter()
                 .map(|i| bounds(&i.gaussians))
                 .collect(),
+            spread: (0..n).map(|_| None).collect(),
         };
         let mut order: Vec<usize> = (0..n).collect();
         order.sort_by_key(|&i| {
@@ -713,6 +768,7 @@ impl SceneMap {
                     let absorbed = self.instances[b].clone();
                     self.instances[a].absorb(&absorbed, p);
                     footprints.built[a] = None;
+                    footprints.spread[a] = None;
                     let ((lo_a, hi_a), (lo_b, hi_b)) = (footprints.bounds[a], footprints.bounds[b]);
                     footprints.bounds[a] = (lo_a.min(lo_b), hi_a.max(hi_b));
                     keep[b] = false;
@@ -827,24 +883,63 @@ mod tests {
         // wider than the part of the mattress seen, rising above it.
         let mattress = (Vec3::new(5.1, 1.9, 0.0), Vec3::new(6.6, 2.6, 0.48));
         let headboard = (Vec3::new(7.45, 1.1, 0.48), Vec3::new(7.6, 3.0, 1.2));
-        assert!(is_back_of(headboard, mattress));
-        assert!(!is_back_of(mattress, headboard), "the mattress is no back");
+        assert!(is_back_of(headboard, mattress, 0.0));
+        assert!(
+            !is_back_of(mattress, headboard, 0.0),
+            "the mattress is no back"
+        );
         // A twin bed beside it (y 3.4-5.0): the headboard lies along its own bed, not this one.
         let twin = (Vec3::new(5.6, 3.4, 0.0), Vec3::new(7.5, 5.0, 0.48));
-        assert!(!is_back_of(headboard, twin));
+        assert!(!is_back_of(headboard, twin, 0.0));
         // A chair in the row behind another: its back is no higher than the other chair.
         let chair = (Vec3::new(0.0, 0.0, 0.0), Vec3::new(0.45, 0.45, 0.9));
         let back_of_the_chair_behind = (Vec3::new(0.0, 0.7, 0.45), Vec3::new(0.45, 0.75, 0.9));
-        assert!(!is_back_of(back_of_the_chair_behind, chair));
+        assert!(!is_back_of(back_of_the_chair_behind, chair, 0.0));
         // Farther than the gap, in the seat's middle, or without finite bounds: no back.
         let far = (Vec3::new(7.7, 1.1, 0.48), Vec3::new(7.85, 3.0, 1.2));
         let across_the_middle = (Vec3::new(5.8, 1.1, 0.48), Vec3::new(5.95, 3.0, 1.2));
-        assert!(!is_back_of(far, mattress) && !is_back_of(across_the_middle, mattress));
+        assert!(!is_back_of(far, mattress, 0.0) && !is_back_of(across_the_middle, mattress, 0.0));
         let nan = (Vec3::splat(f32::NAN), Vec3::splat(f32::NAN));
         let empty = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
         for bad in [nan, empty] {
-            assert!(!is_back_of(bad, mattress) && !is_back_of(headboard, bad));
+            assert!(!is_back_of(bad, mattress, 0.0) && !is_back_of(headboard, bad, 0.0));
         }
+    }
+
+    #[test]
+    fn a_noisy_back_is_judged_by_its_central_points_less_the_noise_and_degenerate_sets_are_no_back()
+    {
+        // 100 points along x (0..99 cm) and two non-finite ones: 5% each side left out.
+        let mut points: Vec<Vec3> = (0..100)
+            .map(|i| Vec3::new(i as f32 * 0.01, 0.0, 0.0))
+            .collect();
+        points.push(Vec3::NAN);
+        points.push(Vec3::new(f32::INFINITY, 0.0, 0.0));
+        let (lo, hi) = share_bounds(&points, BACK_SPREAD_SHARE);
+        assert!(
+            (lo.x - 0.05).abs() < 1e-6 && (hi.x - 0.94).abs() < 1e-6,
+            "{lo} {hi}"
+        );
+        let single = share_bounds(&[Vec3::ONE], BACK_SPREAD_SHARE);
+        assert_eq!(single, (Vec3::ONE, Vec3::ONE));
+        let empty = share_bounds(&[Vec3::NAN], BACK_SPREAD_SHARE);
+        assert_eq!(empty, (Vec3::INFINITY, Vec3::NEG_INFINITY));
+        // A headboard 0.9 m deep through noise: a back only with the noise's spread allowed for.
+        let mattress = (Vec3::new(5.1, 1.9, 0.0), Vec3::new(6.6, 2.6, 0.48));
+        let spread_headboard = (Vec3::new(7.1, 1.1, 0.48), Vec3::new(8.0, 3.0, 1.2));
+        assert!(!is_back_of(spread_headboard, mattress, 0.0));
+        assert!(is_back_of(spread_headboard, mattress, 0.6));
+        // Noise never makes a back of what is no back: the mattress, or a chair's neighbour.
+        assert!(!is_back_of(mattress, spread_headboard, 0.6));
+        // A lamp's shade above another lamp, 21 cm across each way: the noise makes it thin,
+        // never long.
+        let lamp = (Vec3::new(0.0, 0.0, 0.0), Vec3::new(0.25, 0.25, 0.52));
+        let shade = (Vec3::new(0.02, 0.3, 0.7), Vec3::new(0.234, 0.51, 0.83));
+        assert!(!is_back_of(shade, lamp, 0.18));
+        for bad in [f32::NAN, -0.1, f32::INFINITY] {
+            assert!(!is_back_of(spread_headboard, mattress, bad), "{bad}");
+        }
+        assert!(!is_back_of(empty, mattress, 0.6));
     }
 
     #[test]
@@ -862,6 +957,7 @@ mod tests {
                 voxel: 0.05,
                 built: vec![None, None],
                 bounds: vec![bounds(&a), bounds(&b)],
+                spread: vec![None, None],
             };
             if !footprints.far_apart(0, 1) {
                 continue;
