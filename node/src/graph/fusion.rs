@@ -11,7 +11,7 @@ use rustc_hash::FxHashMap;
 use super::error::GraphError;
 use super::instance::{bounds, capped, cosine, FusionParams, Instance};
 use crate::frame::{Keyframe, WindowInstance, WindowView};
-use crate::recon::boxes::OrientedBox;
+use crate::recon::boxes::{trimmed_range, OrientedBox};
 use crate::recon::depth_noise::median_measured;
 use crate::recon::gaussians::Gaussians;
 
@@ -274,22 +274,19 @@ impl Footprints {
     }
 }
 
-/// Per axis, the bounds between the `share` and 1 − `share` quantiles of the finite `points`
-/// (nearest rank); empty bounds (+∞, −∞) without finite points.
+/// Per axis, the bounds of the finite `points` leaving `share` of them out at each end (the
+/// box fit's [`trimmed_range`]); empty bounds (+∞, −∞) without finite points.
 fn share_bounds(points: &[Vec3], share: f32) -> (Vec3, Vec3) {
     let finite: Vec<Vec3> = points.iter().copied().filter(|p| p.is_finite()).collect();
     let (mut lo, mut hi) = (Vec3::INFINITY, Vec3::NEG_INFINITY);
     if finite.is_empty() {
         return (lo, hi);
     }
-    let last = finite.len() - 1;
-    let low_rank = ((share * last as f32).round() as usize).min(last);
-    let high_rank = last - low_rank;
     for axis in 0..3 {
-        let mut values: Vec<f32> = finite.iter().map(|p| p[axis]).collect();
-        values.sort_unstable_by(f32::total_cmp);
-        lo[axis] = values[low_rank];
-        hi[axis] = values[high_rank];
+        let mut values: Vec<f64> = finite.iter().map(|p| f64::from(p[axis])).collect();
+        let (low, high) = trimmed_range(&mut values, f64::from(share));
+        lo[axis] = low as f32;
+        hi[axis] = high as f32;
     }
     (lo, hi)
 }

@@ -196,7 +196,7 @@ fn principal_yaw(points: &[DVec3]) -> f64 {
 
 /// (low, high) percentiles of `values` leaving `trim` of them out at each end: the values a
 /// sort would put at those ranks, found by selection (linear time; boxes are refitted often).
-fn trimmed_range(values: &mut [f64], trim: f64) -> (f64, f64) {
+pub(crate) fn trimmed_range(values: &mut [f64], trim: f64) -> (f64, f64) {
     let n = values.len();
     let cut = ((n as f64) * trim.clamp(0.0, 0.49)).floor() as usize;
     let (lo, hi) = (cut.min(n - 1), (n - 1 - cut).max(cut.min(n - 1)));
