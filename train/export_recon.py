@@ -25,6 +25,7 @@ import onnxruntime as ort
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from gf.cpu_graph import rewrite_file_for_cpu  # noqa: E402
 from gf.data import POINTS_SCALE  # noqa: E402
 from gf.model import example_inputs, onnx_parity, parameter_count  # noqa: E402
 from gf.recover import model_from_file  # noqa: E402
@@ -220,6 +221,7 @@ def main():
     torch.onnx.export(Contract(model, names), tuple(arguments(2).values()), onnx_path, input_names=names,
                       output_names=['depth', 'gaussians', 'embeddings'], dynamic_axes=dynamic, opset_version=17,
                       dynamo=False)
+    rewrite = rewrite_file_for_cpu(onnx_path)
     session = ort.InferenceSession(str(onnx_path), providers=['CPUExecutionProvider'])
     assert [i.name for i in session.get_inputs()] == names, session.get_inputs()
     worst = max(onnx_parity(model, session, arguments(views)) for views in (2, 4))
@@ -234,6 +236,8 @@ def main():
             provenance += f'; {guided_note(*guided, after_training=True, points=model.mode == "rgbd")}'
     else:
         provenance = checkpoint_provenance(args, model, json.loads(Path(args.summary).read_text()), guided)
+    if rewrite and 'graph rewritten for the CPU runtime' not in provenance:
+        provenance += f'; graph rewritten for the CPU runtime ({rewrite})'
     manifest = f'''# GroupForward-mini ({args.mode}), trained here on the simulator by train/train_recon.py. Not a
 # pretrained paper model: {parameter_count(model) / 1e6:.2f} M parameters, small synthetic rooms only.
 name = "{args.name}"

@@ -16,6 +16,7 @@ import onnxruntime as ort
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from gf.cpu_graph import rewrite_file_for_cpu  # noqa: E402
 from gf.model import parameter_count  # noqa: E402
 from gf.semantic import FEATURE_DIM, SemanticMini  # noqa: E402
 
@@ -40,6 +41,7 @@ def main():
     onnx_path = MODELS / f'{args.name}.onnx'
     torch.onnx.export(model, (image,), onnx_path, input_names=['image'], output_names=['features'],
                       opset_version=17, dynamo=False)
+    rewrite = rewrite_file_for_cpu(onnx_path)
     session = ort.InferenceSession(str(onnx_path), providers=['CPUExecutionProvider'])
     worst = 0.0
     for _ in range(3):
@@ -57,6 +59,7 @@ def main():
     device = summary.get('device', 'cpu')
     trained_on = (f"on {summary['threads']} CPU thread(s)" if device == 'cpu'
                   else f"on a lent GPU ({device}, {summary['threads']} CPU threads for the data)")
+    rewritten = f'; graph rewritten for the CPU runtime ({rewrite})' if rewrite else ''
     manifest = f'''# Semantic-mini (the LSeg role), trained here on the simulator by train/train_semantic.py. Not a
 # pretrained model: {parameter_count(model) / 1e6:.2f} M parameters, 16 object classes of small synthetic rooms
 # plus `other`; features live in the all-MiniLM-L6-v2 text space (cosine to a phrase's embedding).
@@ -66,7 +69,7 @@ file = "{args.name}.onnx"
 input_height = {height}
 input_width = {width}
 embedding_dim = {FEATURE_DIM}
-provenance = "trained from scratch on groupforward-sim train split ({summary['train_windows']} windows x 4 views, 128x96{effects}) against the int8 all-MiniLM-L6-v2 embeddings of class names and descriptions; checkpoint of step {best['step']} ({best['minutes']:.0f} min) of a {summary['steps']}-step, {summary['minutes']:.0f}-min run {trained_on}, picked by mIoU on {best['windows']} val windows; benchmarks below on {report['windows']} other val windows; ONNX parity {worst:.1e}; {size / 1e6:.1f} MB"
+provenance = "trained from scratch on groupforward-sim train split ({summary['train_windows']} windows x 4 views, 128x96{effects}) against the int8 all-MiniLM-L6-v2 embeddings of class names and descriptions; checkpoint of step {best['step']} ({best['minutes']:.0f} min) of a {summary['steps']}-step, {summary['minutes']:.0f}-min run {trained_on}, picked by mIoU on {best['windows']} val windows; benchmarks below on {report['windows']} other val windows; ONNX parity {worst:.1e}{rewritten}; {size / 1e6:.1f} MB"
 license = "Apache-2.0"
 
 [normalization]

@@ -38,6 +38,8 @@ def recovered_model(path, mode, guided=None):
     # Only the renamed initializers are missing, and none of them decides the architecture.
     model = GroupForwardMini.for_parameter_names(state, mode)
     expected = model.state_dict()
+    for name, value in state.items():
+        state[name] = _without_padding(name, value, expected.get(name))
     missing = [k for k in expected if k not in state]
     renamed = sorted((k for k in initializers if k.startswith('onnx::')), key=_number)
     matrices = [k for k in renamed if k.startswith('onnx::MatMul')]
@@ -59,6 +61,18 @@ def recovered_model(path, mode, guided=None):
     model.eval()
     check_parity(model, path)
     return model
+
+
+def _without_padding(name, value, expected):
+    """A convolution weight whose input channels gf.cpu_graph padded with zeros, cut back to the
+    architecture's; any other value as it is."""
+    if expected is None or value.dim() != 4 or value.shape == expected.shape:
+        return value
+    channels = expected.shape[1]
+    if (value.shape[0], *value.shape[2:]) != (expected.shape[0], *expected.shape[2:]) \
+            or value.shape[1] < channels or value[:, channels:].abs().max() != 0:
+        raise RecoveryError(f'{name}: {tuple(value.shape)} is not {tuple(expected.shape)} padded with zero channels')
+    return value[:, :channels].contiguous()
 
 
 def model_from_file(path, mode, guided=None):
