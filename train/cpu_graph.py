@@ -17,8 +17,7 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from gf.cpu_graph import output_difference, rewrite_for_cpu  # noqa: E402
 from gf.model import cpu_session, example_inputs  # noqa: E402
-
-PARITY = 1e-4
+from gf.recover import PARITY  # noqa: E402  (the exporters' and the recovery's bound)
 
 
 def random_feed(session, views, generator):
