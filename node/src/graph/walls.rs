@@ -62,6 +62,11 @@ impl Walls {
         )
     }
 
+    /// The floor's height, when the structure shows one.
+    pub fn floor(&self) -> Option<f32> {
+        self.floor
+    }
+
     /// From the Gaussians' centres of the map's structure instances.
     pub fn new(points: Vec<Vec3>) -> Self {
         let points: Vec<Vec3> = points.into_iter().filter(|p| p.is_finite()).collect();
@@ -262,13 +267,20 @@ pub fn published_box(
     if !is_thin(&fitted) {
         return Some(fitted);
     }
-    walls
-        .get_or_init(|| {
-            Walls::of_map(map, |i| {
-                vocabulary.is_some_and(|v| v.is_structure(&i.prototype))
-            })
+    map_walls(walls, map, vocabulary).place(fitted)
+}
+
+/// The map's structure as [`Walls`], built at the first call.
+fn map_walls<'a>(
+    walls: &'a std::cell::OnceCell<Walls>,
+    map: &SceneMap,
+    vocabulary: Option<&Vocabulary>,
+) -> &'a Walls {
+    walls.get_or_init(|| {
+        Walls::of_map(map, |i| {
+            vocabulary.is_some_and(|v| v.is_structure(&i.prototype))
         })
-        .place(fitted)
+    })
 }
 
 /// The map's object list, as the node publishes it, the evaluation scores it and queries pick
@@ -300,7 +312,7 @@ pub fn object_list<'a>(
             });
             completed_face
                 .or_else(|| publish(fitted.points))
-                .map(|b| (i, b))
+                .map(|b| (i, standing_on_floor(b, i, &walls, map, vocabulary)))
         })
         .collect()
 }
@@ -340,6 +352,27 @@ fn seen_from_one_side(
     };
     match amodal::typical_depth(&name) {
         Some(depth) => amodal::complete_away_from(placed, viewpoint, depth),
+        None => placed,
+    }
+}
+
+/// `placed` extended down to the map's floor when the instance's best name is one of objects
+/// that stand there and the box floats ([`amodal::down_to_floor`]); as it is otherwise.
+fn standing_on_floor(
+    placed: OrientedBox,
+    instance: &Instance,
+    walls: &std::cell::OnceCell<Walls>,
+    map: &SceneMap,
+    vocabulary: Option<&Vocabulary>,
+) -> OrientedBox {
+    let standing = vocabulary
+        .and_then(|v| v.hypotheses(&instance.prototype, 1).into_iter().next())
+        .is_some_and(|(name, _)| amodal::stands_on_floor(&name));
+    if !standing {
+        return placed;
+    }
+    match map_walls(walls, map, vocabulary).floor() {
+        Some(floor) => amodal::down_to_floor(placed, f64::from(floor)),
         None => placed,
     }
 }
