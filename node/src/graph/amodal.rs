@@ -255,12 +255,15 @@ mod tests {
         assert!(grown.size.is_finite() && grown.centre.is_finite() && grown.size.z > 0.4);
     }
 
-    #[test]
-    fn what_stands_on_the_floor_in_the_training_rooms_is_every_floor_standing_name() {
+    /// `measure` of the ground-truth box of every object in the first 200 scenes of the
+    /// simulator's `train` split (the rooms the models were trained on), by class name.
+    fn training_boxes(
+        measure: impl Fn(&OrientedBox) -> f64,
+    ) -> std::collections::HashMap<&'static str, Vec<f64>> {
         use groupforward_sim::procedural::{generate, Split};
         use groupforward_sim::simulation::Simulation;
         let classes = groupforward_sim::library::classes();
-        let mut bottoms: std::collections::HashMap<&str, Vec<f64>> = Default::default();
+        let mut measured: std::collections::HashMap<&str, Vec<f64>> = Default::default();
         for index in 0..200 {
             let Some(file) = generate(Split::Train, index) else {
                 break;
@@ -271,12 +274,15 @@ mod tests {
                     continue;
                 };
                 let b = crate::eval::run::truth_box(object);
-                bottoms
-                    .entry(class.name)
-                    .or_default()
-                    .push(b.centre.z - b.size.z / 2.0);
+                measured.entry(class.name).or_default().push(measure(&b));
             }
         }
+        measured
+    }
+
+    #[test]
+    fn what_stands_on_the_floor_in_the_training_rooms_is_every_floor_standing_name() {
+        let bottoms = training_boxes(|b| b.centre.z - b.size.z / 2.0);
         for name in FLOOR_STANDING {
             let seen = bottoms
                 .get(name)
@@ -295,26 +301,7 @@ mod tests {
 
     #[test]
     fn the_typical_depths_are_the_training_rooms_medians() {
-        use groupforward_sim::procedural::{generate, Split};
-        use groupforward_sim::simulation::Simulation;
-        let classes = groupforward_sim::library::classes();
-        let mut depths: std::collections::HashMap<&str, Vec<f64>> = Default::default();
-        for index in 0..200 {
-            let Some(file) = generate(Split::Train, index) else {
-                break;
-            };
-            let sim = Simulation::new(file).expect("a training scene loads");
-            for object in &sim.scene.objects {
-                let Some(class) = classes.iter().find(|c| c.id == object.class_id) else {
-                    continue;
-                };
-                let b = crate::eval::run::truth_box(object);
-                depths
-                    .entry(class.name)
-                    .or_default()
-                    .push(b.size.x.min(b.size.y));
-            }
-        }
+        let mut depths = training_boxes(|b| b.size.x.min(b.size.y));
         for (name, shipped) in TYPICAL_DEPTH_M {
             let seen = depths
                 .get_mut(name)
