@@ -179,6 +179,23 @@ fn resize_depth(depth: &DepthImage, width: usize, height: usize) -> Vec<f32> {
     out
 }
 
+/// The sensor depths of the pixels that overlap model pixel `(x, y)` at the model resolution
+/// `(width, height)` (among them the one [`resize_depth`] samples).
+fn footprint(
+    depth: &DepthImage,
+    (width, height): (usize, usize),
+    (x, y): (usize, usize),
+) -> impl Iterator<Item = f32> + '_ {
+    let (w, h) = (depth.width as usize, depth.height as usize);
+    let span = |i: usize, model: usize, sensor: usize| {
+        let start = i * sensor / model;
+        let end = ((i + 1) * sensor).div_ceil(model).clamp(start + 1, sensor);
+        start..end
+    };
+    let (rows, columns) = (span(y, height, h), span(x, width, w));
+    rows.flat_map(move |sy| columns.clone().map(move |sx| depth.metres[sy * w + sx]))
+}
+
 /// Where sensor depth is missing, the model's own depth is trusted when it lies within this
 /// fraction of a valid 4-neighbour's sensor depth: the pixel then continues a measured surface.
 /// Depth cameras lose the pixels along every depth edge (`--effects realistic`: 8 cm edges), which
@@ -196,8 +213,12 @@ pub const MODEL_DEPTH_AGREEMENT: f32 = 0.05;
 
 /// Replace a prediction's depth by the views' sensor depth at the model resolution (nearest
 /// sample, so no depth is averaged across an edge). Where the sensor gave no valid depth (NaN, 0,
-/// ∞) and the model's own depth agrees with a valid 4-neighbour's ([`MODEL_DEPTH_AGREEMENT`]),
-/// the pixel takes that neighbour's depth (the closest to the model's, when several agree): it
+/// ∞) and the model's own depth agrees with a valid measurement of the sensor pixels the pixel
+/// covers, or else with a valid 4-neighbour's ([`MODEL_DEPTH_AGREEMENT`]), the pixel takes that
+/// depth (the closest to the model's, when several agree). The footprint comes first: on
+/// benchmark 10-29 with `--effects realistic` it lifts 4% more of the pixels without depth and
+/// gave recall@0.25 / @0.5 / precision 69.0 / 45.8 / 84.7% against 68.5 / 44.6 / 83.3% (0-9:
+/// 80.5 / 46.8 / 88.6 against 80.5 / 46.8 / 87.3; both within the spread; clean maps unchanged). It
 /// continues the measured surface, whose depth the camera knows better than the model (abs-rel
 /// 2.6%, most of it at outlines); else the pixel becomes NaN and is not lifted. Lifted at the
 /// model's depth instead, benchmark 0-9 with `--effects realistic` scored recall@0.25 / @0.5 /
@@ -229,6 +250,18 @@ pub fn use_sensor_depth(prediction: &mut Prediction, views: &[View<'_>]) -> usiz
                 continue;
             }
             let (x, y) = (i % w, i / w);
+            let agrees = |z: f32| valid(z) && (z - model).abs() <= MODEL_DEPTH_AGREEMENT * z;
+            let closest = |a: &f32, b: &f32| (a - model).abs().total_cmp(&(b - model).abs());
+            // The pixel's own footprint first: the sensor pixels it covers, beside the one
+            // sampled, are the same patch of surface when they agree with the model.
+            if let Some(measured) = footprint(depth, (w, h), (x, y))
+                .filter(|&z| agrees(z))
+                .min_by(closest)
+            {
+                out[i] = measured;
+                from_neighbours += 1;
+                continue;
+            }
             let agreeing = [
                 (x > 0).then(|| i - 1),
                 (x + 1 < w).then(|| i + 1),
@@ -238,8 +271,8 @@ pub fn use_sensor_depth(prediction: &mut Prediction, views: &[View<'_>]) -> usiz
             .into_iter()
             .flatten()
             .map(|j| sensor[j])
-            .filter(|&z| valid(z) && (z - model).abs() <= MODEL_DEPTH_AGREEMENT * z)
-            .min_by(|a, b| (a - model).abs().total_cmp(&(b - model).abs()));
+            .filter(|&z| agrees(z))
+            .min_by(closest);
             match agreeing {
                 Some(measured) => {
                     out[i] = measured;
@@ -656,15 +689,25 @@ mod tests {
     /// `sensor` (one view, `width` × `height`) applied to a prediction of depth `model`: the
     /// depth lifted and the pixels lifted at a neighbour's depth.
     fn with_sensor_depth(sensor: Vec<f32>, model: Vec<f32>, width: usize) -> (Vec<f32>, usize) {
-        let height = sensor.len() / width;
+        with_sensor_depth_of_width(sensor, width, model, width)
+    }
+
+    /// [`with_sensor_depth`] with a sensor `sensor_width` pixels wide (its rows scaled alike).
+    fn with_sensor_depth_of_width(
+        sensor: Vec<f32>,
+        sensor_width: usize,
+        model: Vec<f32>,
+        width: usize,
+    ) -> (Vec<f32>, usize) {
+        let height = model.len() / width;
         let rgb = RgbImage {
             width: width as u32,
             height: height as u32,
             data: vec![0; width * height * 3],
         };
         let depth = DepthImage {
-            width: width as u32,
-            height: height as u32,
+            width: sensor_width as u32,
+            height: (sensor.len() / sensor_width) as u32,
             metres: sensor,
         };
         let camera = Camera::pinhole(width as u32, height as u32, 10.0, 10.0, 1.0, 1.0).unwrap();
@@ -728,6 +771,27 @@ mod tests {
         assert_eq!((out[1], from_neighbours), (3.0, 1));
         let (out, _) = with_sensor_depth(vec![3.0, nan, 3.1], vec![0.0, 3.07, 0.0], 3);
         assert_eq!(out[1], 3.1);
+    }
+
+    #[test]
+    fn a_hole_takes_an_agreeing_measurement_from_its_own_footprint_on_a_finer_sensor() {
+        // A 4×4 sensor under a 2×2 prediction: each model pixel covers 2×2 sensor pixels and
+        // samples the lower right one. A wall at 5 m; the top left footprint holds one
+        // measurement of a face at 2 m beside three holes, the sampled one among them.
+        let nan = f32::NAN;
+        let mut sensor = vec![5.0f32; 16];
+        for i in [1, 4, 5] {
+            sensor[i] = nan;
+        }
+        sensor[0] = 2.0;
+        // The bottom left pixel samples a hole too, with only the wall around it.
+        sensor[13] = nan;
+        let model = vec![2.05, 5.0, 2.0, 5.0];
+        let (out, from_neighbours) = with_sensor_depth_of_width(sensor, 4, model, 2);
+        assert_eq!(out[0], 2.0, "the face measured beside the sampled hole");
+        assert_eq!((out[1], out[3]), (5.0, 5.0));
+        assert!(out[2].is_nan(), "the wall around it is 3 m off the model");
+        assert_eq!(from_neighbours, 1);
     }
 
     #[test]
