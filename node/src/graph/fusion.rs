@@ -47,6 +47,19 @@ struct Footprint {
     spacing: f32,
 }
 
+/// The key that sorts instances oldest first: when first seen, then the order of birth (ids are
+/// numbered as instances are born, so a longer id is younger). Instances born in one window tie
+/// on the first: the lower id is the one the map listed first, so a user holding it keeps it
+/// (ranking by observations instead let a piece seen twice take over the object the user had
+/// been shown under the other id).
+fn birth_order(instance: &Instance) -> (i64, usize, &str) {
+    (
+        instance.first_seen_nanos,
+        instance.id.len(),
+        instance.id.as_str(),
+    )
+}
+
 /// A window instance left over by the one-to-one matching is a part of a persistent instance
 /// when at least this share of its points lies on it.
 const PART_COVERED: f32 = 0.5;
@@ -555,13 +568,7 @@ impl SceneMap {
                     let mut group: Vec<usize> = std::iter::once(j)
                         .chain(duplicates[i].iter().copied().filter(|&d| !absorbed[d]))
                         .collect();
-                    group.sort_by_key(|&k| {
-                        let instance = &self.instances[k];
-                        (
-                            instance.first_seen_nanos,
-                            std::cmp::Reverse(instance.observations),
-                        )
-                    });
+                    group.sort_by_key(|&k| birth_order(&self.instances[k]));
                     let j = group[0];
                     for &d in &group[1..] {
                         absorbed[d] = true;
@@ -747,14 +754,7 @@ impl SceneMap {
             spread: (0..n).map(|_| None).collect(),
         };
         let mut order: Vec<usize> = (0..n).collect();
-        order.sort_by_key(|&i| {
-            let instance = &self.instances[i];
-            (
-                instance.first_seen_nanos,
-                std::cmp::Reverse(instance.observations),
-                i,
-            )
-        });
+        order.sort_by_key(|&i| birth_order(&self.instances[i]));
         let mut folded = Vec::new();
         for (position, &a) in order.iter().enumerate() {
             if !keep[a] {
@@ -840,6 +840,39 @@ mod tests {
             );
         }
         g
+    }
+
+    #[test]
+    fn fragments_born_in_one_window_fold_into_the_lower_id_however_often_the_other_was_seen() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        let piece = rod(&mut rng, Vec3::new(2.0, 2.6, 0.4));
+        let fragment = |id: &str, observations: u32| Instance {
+            id: id.to_owned(),
+            gaussians: piece.clone(),
+            prototype: vec![1.0, 0.0, 0.0],
+            prototype_weight: 1.0,
+            confidence: 0.5,
+            observations,
+            first_seen_nanos: 1_000,
+            last_seen_nanos: 2_000,
+            viewpoint: None,
+            viewpoint_weight: 0.0,
+            range_noise_m: 0.0,
+            range_noise_weight: 0.0,
+        };
+        // Two pieces of one chair born in one window; the younger was seen again by the next
+        // window, the older is the one the map listed. Ids compare in birth order (010 > 009).
+        for (older, younger) in [
+            ("inst_000002", "inst_000003"),
+            ("inst_000009", "inst_000010"),
+        ] {
+            let mut map = SceneMap::new(FusionParams::default());
+            map.instances = vec![fragment(younger, 2), fragment(older, 1)];
+            let folded = map.fold_fragments(|_, _| true);
+            assert_eq!(folded, vec![(younger.to_owned(), older.to_owned())]);
+            assert_eq!(map.instances.len(), 1);
+            assert_eq!(map.instances[0].id, older);
+        }
     }
 
     #[test]
