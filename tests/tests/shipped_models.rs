@@ -525,12 +525,27 @@ fn pixels_without_valid_depth_become_gaussians_only_where_the_models_depth_conti
             (y > 0).then(|| i - w),
             (y + 1 < h).then(|| i + w),
         ];
-        let agreeing: Vec<f32> = neighbours
-            .into_iter()
-            .flatten()
-            .map(sensor_at)
-            .filter(|&s| valid(s) && (s - model_z).abs() <= MODEL_DEPTH_AGREEMENT * s)
+        let agrees = |s: &f32| valid(*s) && (s - model_z).abs() <= MODEL_DEPTH_AGREEMENT * *s;
+        // The sensor pixels this pixel covers first, then its 4 neighbours' samples.
+        let span = |i: usize, model: usize, sensor: usize| {
+            let start = i * sensor / model;
+            start..((i + 1) * sensor).div_ceil(model).clamp(start + 1, sensor)
+        };
+        let depth = &frames[i / (w * h)].depth.as_ref().unwrap().metres;
+        let footprint: Vec<f32> = span(y, h, th)
+            .flat_map(|sy| span(x, w, tw).map(move |sx| depth[sy * tw + sx]))
+            .filter(agrees)
             .collect();
+        let agreeing: Vec<f32> = if footprint.is_empty() {
+            neighbours
+                .into_iter()
+                .flatten()
+                .map(sensor_at)
+                .filter(agrees)
+                .collect()
+        } else {
+            footprint
+        };
         assert_eq!(
             is_lifted,
             !agreeing.is_empty(),
