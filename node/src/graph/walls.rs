@@ -297,10 +297,16 @@ pub fn object_list<'a>(
         .iter()
         .filter(|i| vocabulary.is_none_or(|v| v.is_listed(&i.prototype, i.gaussians.len())))
         .filter_map(|i| {
-            let fitted = fit(i, box_like(i, vocabulary));
+            // The best name, read once: three completions ask for it.
+            let name = vocabulary
+                .and_then(|v| v.hypotheses(&i.prototype, 1).into_iter().next())
+                .map(|(name, _)| name);
+            let name = name.as_deref();
+            let box_like = name.is_some_and(|n| amodal::typical_depth(n).is_some());
+            let fitted = fit(i, box_like);
             let publish = |b: OrientedBox| {
                 published_box(b, &walls, map, vocabulary)
-                    .map(|placed| seen_from_one_side(placed, i, vocabulary))
+                    .map(|placed| seen_from_one_side(placed, i, name))
             };
             // A face seen through range noise is a slab as deep as the noise, which no
             // completion takes for a face; its surface is completed where a clean camera's
@@ -312,17 +318,9 @@ pub fn object_list<'a>(
             });
             completed_face
                 .or_else(|| publish(fitted.points))
-                .map(|b| (i, standing_on_floor(b, i, &walls, map, vocabulary)))
+                .map(|b| (i, standing_on_floor(b, name, &walls, map, vocabulary)))
         })
         .collect()
-}
-
-/// Whether the instance's best name is one of box-like furniture (one with a typical depth,
-/// [`amodal::typical_depth`]).
-fn box_like(instance: &Instance, vocabulary: Option<&Vocabulary>) -> bool {
-    vocabulary
-        .and_then(|v| v.hypotheses(&instance.prototype, 1).into_iter().next())
-        .is_some_and(|(name, _)| amodal::typical_depth(&name).is_some())
 }
 
 /// Whether `completed` is the vertical face `surface` completed behind it (back to a wall or
@@ -335,40 +333,26 @@ fn deepened_face(surface: &OrientedBox, completed: &OrientedBox) -> bool {
 /// `placed` completed away from the instance's viewpoint to its name's typical depth when it is
 /// an object's face seen from one side ([`amodal`]); as it is without a name, a depth or a
 /// viewpoint.
-fn seen_from_one_side(
-    placed: OrientedBox,
-    instance: &Instance,
-    vocabulary: Option<&Vocabulary>,
-) -> OrientedBox {
-    let (Some(vocabulary), Some(viewpoint)) = (vocabulary, instance.viewpoint) else {
+fn seen_from_one_side(placed: OrientedBox, instance: &Instance, name: Option<&str>) -> OrientedBox {
+    let (Some(name), Some(viewpoint)) = (name, instance.viewpoint) else {
         return placed;
     };
-    let Some((name, _)) = vocabulary
-        .hypotheses(&instance.prototype, 1)
-        .into_iter()
-        .next()
-    else {
-        return placed;
-    };
-    match amodal::typical_depth(&name) {
+    match amodal::typical_depth(name) {
         Some(depth) => amodal::complete_away_from(placed, viewpoint, depth),
         None => placed,
     }
 }
 
-/// `placed` extended down to the map's floor when the instance's best name is one of objects
+/// `placed` extended down to the map's floor when the instance's best `name` is one of objects
 /// that stand there and the box floats ([`amodal::down_to_floor`]); as it is otherwise.
 fn standing_on_floor(
     placed: OrientedBox,
-    instance: &Instance,
+    name: Option<&str>,
     walls: &std::cell::OnceCell<Walls>,
     map: &SceneMap,
     vocabulary: Option<&Vocabulary>,
 ) -> OrientedBox {
-    let standing = vocabulary
-        .and_then(|v| v.hypotheses(&instance.prototype, 1).into_iter().next())
-        .is_some_and(|(name, _)| amodal::stands_on_floor(&name));
-    if !standing {
+    if !name.is_some_and(amodal::stands_on_floor) {
         return placed;
     }
     match map_walls(walls, map, vocabulary).floor() {
