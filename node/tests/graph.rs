@@ -843,6 +843,60 @@ fn overlapping_instances_with_alike_features_but_two_names_are_not_duplicates() 
 }
 
 #[test]
+fn instances_filling_one_space_are_one_object_whatever_they_are_named() {
+    // A trash bin seen as a bin, then again, slightly shifted, with pooled features the
+    // vocabulary names "desk": the boxes overlap at IoU ~0.6, which no two solid objects do.
+    // The younger folds into the older. A chair and a table at IoU ~0.3 (pushed under its edge)
+    // stay two, and neither folds into structure around them.
+    let named = |p: &[f32]| if p[1] > p[2] { "bin" } else { "desk" };
+    let bin = WindowInstance {
+        gaussians: cuboid(Vec3::new(3.0, 0.0, 0.25), Vec3::new(0.15, 0.15, 0.25)),
+        prototype: vec![1.0, 0.3, 0.0],
+        support: 300,
+    };
+    let desk = WindowInstance {
+        gaussians: cuboid(Vec3::new(3.03, 0.03, 0.22), Vec3::new(0.15, 0.15, 0.22)),
+        prototype: vec![0.0, 0.2, 1.0],
+        support: 80,
+    };
+    let mut map = SceneMap::new(FusionParams::default());
+    map.fuse_named(vec![bin.clone()], &[], 1, |a, b| named(a) == named(b))
+        .unwrap();
+    let report = map
+        .fuse_named(vec![desk.clone()], &[], 2, |a, b| named(a) == named(b))
+        .unwrap();
+    assert_eq!(map.instances.len(), 1, "{report:?}");
+    assert_eq!(map.instances[0].id, "inst_000001");
+    assert_eq!(
+        report.absorbed,
+        [("inst_000002".to_owned(), "inst_000001".to_owned())]
+    );
+    // The window's sighting is reported under the id it went into.
+    assert_eq!(report.assigned, ["inst_000001"]);
+    // The same pair, the desk one metre away: two objects.
+    let mut apart = SceneMap::new(FusionParams::default());
+    let mut moved = desk.clone();
+    moved.gaussians.means.iter_mut().for_each(|m| m.x += 1.0);
+    apart
+        .fuse_named(vec![bin.clone(), moved], &[], 1, |a, b| {
+            named(a) == named(b)
+        })
+        .unwrap();
+    assert_eq!(apart.instances.len(), 2);
+    // An object inside structure's space (best name structure: not an object) stays.
+    let structure = |p: &[f32]| p[0] > 0.9 && p[1] == 0.0 && p[2] == 0.0;
+    let kind = |a: &[f32], b: &[f32]| !structure(a) && !structure(b) && named(a) == named(b);
+    let wall = WindowInstance {
+        gaussians: cuboid(Vec3::new(3.0, 0.0, 0.25), Vec3::new(0.16, 0.16, 0.26)),
+        prototype: vec![1.0, 0.0, 0.0],
+        support: 300,
+    };
+    let mut walled = SceneMap::new(FusionParams::default());
+    walled.fuse_named(vec![wall, desk], &[], 1, kind).unwrap();
+    assert_eq!(walled.instances.len(), 2);
+}
+
+#[test]
 fn a_window_that_splits_an_object_puts_every_part_into_its_one_instance() {
     // The map holds a table; the next window gives its top and one leg as two instances (a
     // window's grouping often does). Both parts are that table: no new id, nothing born.
