@@ -17,7 +17,8 @@ use serde::{Deserialize, Serialize};
 
 use crate::exposure::ExposureTracker;
 use crate::frame::{Keyframe, SyncedFrame, WindowInstance, WindowView};
-use crate::graph::{FusionReport, GraphError, SceneMap};
+use crate::graph::amodal::largest_side;
+use crate::graph::{FusionReport, GraphError, Kinds, SceneMap};
 use crate::group::cleaning::{
     drop_other_objects, drop_support_bleed, floor_height, flying_pixels, split_components,
     CleaningParams,
@@ -877,10 +878,7 @@ impl WindowModels {
         stamp_nanos: i64,
     ) -> Result<FusionReport, GraphError> {
         match &self.vocabulary {
-            Some(v) => {
-                let kinds = KindMemo::new(v);
-                map.fuse_named(instances, views, stamp_nanos, |a, b| kinds.same_kind(a, b))
-            }
+            Some(v) => map.fuse_named(instances, views, stamp_nanos, KindMemo::new(v)),
             None => map.fuse(instances, views, stamp_nanos),
         }
     }
@@ -894,6 +892,18 @@ impl WindowModels {
             frames,
             &self.grouping,
         )
+    }
+}
+
+/// The vocabulary as fusion asks it: kinds by best name, sizes by [`largest_side`].
+impl Kinds for KindMemo<'_> {
+    fn same_kind(&self, a: &[f32], b: &[f32]) -> bool {
+        KindMemo::same_kind(self, a, b)
+    }
+
+    fn largest_side(&self, prototype: &[f32]) -> Option<f64> {
+        self.best_phrase(prototype)
+            .and_then(|name| largest_side(&name))
     }
 }
 

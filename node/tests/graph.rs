@@ -5,7 +5,7 @@
 use glam::{DQuat, DVec3, Quat, Vec3};
 use groupforward::frame::{Keyframe, WindowInstance, WindowView};
 use groupforward::graph::persist::{self, PersistError};
-use groupforward::graph::{FusionParams, SceneMap};
+use groupforward::graph::{FusionParams, Kinds, SceneMap};
 use groupforward::recon::boxes::OrientedBox;
 use groupforward::recon::camera::Camera;
 use groupforward::recon::gaussians::Gaussians;
@@ -659,7 +659,12 @@ fn touching_fragments_named_alike_fold_and_touching_objects_of_two_kinds_do_not(
         ..bed(x, half_x)
     };
     unnamed
-        .fuse_named(vec![bare(0.0, 0.5), bare(0.6, 0.1)], &[], 1, |_, _| true)
+        .fuse_named(
+            vec![bare(0.0, 0.5), bare(0.6, 0.1)],
+            &[],
+            1,
+            |_: &[f32], _: &[f32]| true,
+        )
         .unwrap();
     assert_eq!(unnamed.instances.len(), 2);
 }
@@ -827,9 +832,12 @@ fn overlapping_instances_with_alike_features_but_two_names_are_not_duplicates() 
     let named = |p: &[f32]| if p[1] > p[2] { "chair" } else { "table" };
     let mut map = SceneMap::new(FusionParams::default());
     let report = map
-        .fuse_named(vec![chair.clone(), table.clone()], &[], 1, |a, b| {
-            named(a) == named(b)
-        })
+        .fuse_named(
+            vec![chair.clone(), table.clone()],
+            &[],
+            1,
+            |a: &[f32], b: &[f32]| named(a) == named(b),
+        )
         .unwrap();
     assert!(report.absorbed.is_empty(), "{:?}", report.absorbed);
     assert_eq!(map.instances.len(), 2);
@@ -860,10 +868,14 @@ fn instances_filling_one_space_are_one_object_whatever_they_are_named() {
         support: 80,
     };
     let mut map = SceneMap::new(FusionParams::default());
-    map.fuse_named(vec![bin.clone()], &[], 1, |a, b| named(a) == named(b))
-        .unwrap();
+    map.fuse_named(vec![bin.clone()], &[], 1, |a: &[f32], b: &[f32]| {
+        named(a) == named(b)
+    })
+    .unwrap();
     let report = map
-        .fuse_named(vec![desk.clone()], &[], 2, |a, b| named(a) == named(b))
+        .fuse_named(vec![desk.clone()], &[], 2, |a: &[f32], b: &[f32]| {
+            named(a) == named(b)
+        })
         .unwrap();
     assert_eq!(map.instances.len(), 1, "{report:?}");
     assert_eq!(map.instances[0].id, "inst_000001");
@@ -878,7 +890,7 @@ fn instances_filling_one_space_are_one_object_whatever_they_are_named() {
     let mut moved = desk.clone();
     moved.gaussians.means.iter_mut().for_each(|m| m.x += 1.0);
     apart
-        .fuse_named(vec![bin.clone(), moved], &[], 1, |a, b| {
+        .fuse_named(vec![bin.clone(), moved], &[], 1, |a: &[f32], b: &[f32]| {
             named(a) == named(b)
         })
         .unwrap();
@@ -894,6 +906,60 @@ fn instances_filling_one_space_are_one_object_whatever_they_are_named() {
     let mut walled = SceneMap::new(FusionParams::default());
     walled.fuse_named(vec![wall, desk], &[], 1, kind).unwrap();
     assert_eq!(walled.instances.len(), 2);
+}
+
+/// Kinds by equal prototypes, with sizes: the first entry above 0.5 is a chair (at most
+/// 0.52 m long), anything else a bed (2.34 m).
+struct SizedKinds;
+
+impl Kinds for SizedKinds {
+    fn same_kind(&self, a: &[f32], b: &[f32]) -> bool {
+        a == b
+    }
+
+    fn largest_side(&self, prototype: &[f32]) -> Option<f64> {
+        Some(if prototype[0] > 0.5 { 0.52 } else { 2.34 })
+    }
+}
+
+#[test]
+fn two_chairs_side_by_side_stay_two_but_the_halves_of_a_bed_fold() {
+    // Two chairs touching, named alike with alike features: fragments by every test but
+    // size, and together twice as long as any chair.
+    let chair = |x: f32| WindowInstance {
+        gaussians: cuboid(Vec3::new(x, 0.0, 0.45), Vec3::new(0.22, 0.22, 0.45)),
+        prototype: vec![1.0, 0.0, 0.0],
+        support: 200,
+    };
+    let mut map = SceneMap::new(FusionParams::default());
+    let report = map
+        .fuse_named(vec![chair(0.0), chair(0.46)], &[], 1, SizedKinds)
+        .unwrap();
+    assert!(report.absorbed.is_empty(), "{:?}", report.absorbed);
+    assert_eq!(map.instances.len(), 2);
+    // Without sizes they fold: the setup is a fragment pair.
+    let mut without_sizes = SceneMap::new(FusionParams::default());
+    let report = without_sizes
+        .fuse_named(
+            vec![chair(0.0), chair(0.46)],
+            &[],
+            1,
+            |a: &[f32], b: &[f32]| a == b,
+        )
+        .unwrap();
+    assert_eq!(report.absorbed.len(), 1, "{report:?}");
+    // A bed's two halves, 2 m together, are one bed.
+    let half = |x: f32| WindowInstance {
+        gaussians: cuboid(Vec3::new(x, 0.0, 0.25), Vec3::new(0.5, 0.7, 0.25)),
+        prototype: vec![0.0, 1.0, 0.0],
+        support: 400,
+    };
+    let mut bed = SceneMap::new(FusionParams::default());
+    let report = bed
+        .fuse_named(vec![half(0.0), half(1.02)], &[], 1, SizedKinds)
+        .unwrap();
+    assert_eq!(report.absorbed.len(), 1, "{report:?}");
+    assert_eq!(bed.instances.len(), 1);
 }
 
 #[test]

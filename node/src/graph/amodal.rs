@@ -122,6 +122,36 @@ pub fn down_to_floor(fitted: OrientedBox, floor: f64) -> OrientedBox {
     standing
 }
 
+/// The longest horizontal side (m) an object of each name has: the largest over the ground-truth
+/// boxes of the simulator's `train` split's first 200 rooms (`the_largest_sides_are_the_training_
+/// rooms_largest` recomputes them). Names without an entry (structure) have no bound.
+pub const LARGEST_SIDE_M: &[(&str, f64)] = &[
+    ("chair", 0.52),
+    ("sofa", 2.30),
+    ("table", 1.38),
+    ("desk", 1.61),
+    ("bed", 2.34),
+    ("cabinet", 0.92),
+    ("bookshelf", 1.03),
+    ("refrigerator", 0.80),
+    ("monitor", 0.64),
+    ("toilet", 0.57),
+    ("sink", 0.69),
+    ("box", 0.46),
+    ("trash bin", 0.41),
+    ("lamp", 0.27),
+    ("plant", 0.50),
+    ("pillow", 0.69),
+];
+
+/// The longest horizontal side objects called `name` have, if known ([`LARGEST_SIDE_M`]).
+pub fn largest_side(name: &str) -> Option<f64> {
+    LARGEST_SIDE_M
+        .iter()
+        .find(|(n, _)| *n == name)
+        .map(|(_, side)| *side)
+}
+
 /// `fitted` with its thinner horizontal side `extent` long and its centre moved by `shift` in
 /// the ground plane: a face completed to the object behind it.
 pub(super) fn deepened(fitted: OrientedBox, shift: DVec2, extent: f64) -> OrientedBox {
@@ -296,6 +326,33 @@ mod tests {
         for name in ["lamp", "box", "plant", "monitor", "pillow"] {
             let seen = &bottoms[name];
             assert!(seen.iter().any(|z| *z > RAISED_M), "{name}: {seen:?}");
+        }
+    }
+
+    #[test]
+    fn every_object_of_the_training_rooms_rises_well_above_the_floor_patch_height() {
+        let tops = training_boxes(|b| b.centre.z + b.size.z / 2.0);
+        let lowest = tops
+            .values()
+            .flatten()
+            .copied()
+            .fold(f64::INFINITY, f64::min);
+        assert!(
+            lowest > 2.0 * super::super::walls::FLOOR_TOP_M,
+            "an object's top {lowest:.3} m up"
+        );
+    }
+
+    #[test]
+    fn the_largest_sides_are_the_training_rooms_largest() {
+        let sides = training_boxes(|b| b.size.x.max(b.size.y));
+        assert_eq!(LARGEST_SIDE_M.len(), sides.len(), "every class has a bound");
+        for (name, shipped) in LARGEST_SIDE_M {
+            let largest = sides[name].iter().copied().fold(0.0, f64::max);
+            assert!(
+                (largest - shipped).abs() <= 0.01,
+                "{name}: shipped {shipped}, train's largest {largest:.3}"
+            );
         }
     }
 

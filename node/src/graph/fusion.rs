@@ -11,9 +11,27 @@ use rustc_hash::FxHashMap;
 use super::error::GraphError;
 use super::instance::{bounds, capped, cosine, FusionParams, Instance};
 use crate::frame::{Keyframe, WindowInstance, WindowView};
-use crate::recon::boxes::{trimmed_range, OrientedBox};
+use crate::recon::boxes::{trimmed_range, OrientedBox, DEFAULT_TRIM};
 use crate::recon::depth_noise::median_measured;
 use crate::recon::gaussians::Gaussians;
+use crate::recon::round::fit_object_box;
+
+/// What fusion asks of the vocabulary about instances' prototypes. Any `Fn(&[f32], &[f32]) ->
+/// bool` is one that answers only the first question.
+pub trait Kinds {
+    /// Whether two prototypes name one kind of object (not structure).
+    fn same_kind(&self, a: &[f32], b: &[f32]) -> bool;
+    /// The longest horizontal side (m) an object of `prototype`'s kind has; `None` when unknown.
+    fn largest_side(&self, _prototype: &[f32]) -> Option<f64> {
+        None
+    }
+}
+
+impl<F: Fn(&[f32], &[f32]) -> bool> Kinds for F {
+    fn same_kind(&self, a: &[f32], b: &[f32]) -> bool {
+        self(a, b)
+    }
+}
 
 /// What one fusion step did.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -74,6 +92,12 @@ const PART_COVERED: f32 = 0.5;
 /// Two instances touch when at least this share of the smaller one's points has a point of the
 /// other within the overlap radius (a seam, not an overlap).
 const FRAGMENT_TOUCH: f32 = 0.02;
+
+/// Fragments fold only when the box of both together is at most this many times as long as
+/// the longest object of their name ([`Kinds::largest_side`]; the margin is for depth noise and
+/// boxes fitted to a few points): two chairs side by side touch and are named alike, but
+/// together they are twice as long as any chair.
+const FRAGMENT_SIDE_MARGIN: f64 = 1.5;
 
 /// A leg (or a side panel): an instance at most this thick along x or y (axis-aligned bounds),
 /// at least [`LEG_MIN_HEIGHT_M`] tall and twice as tall as it is thick.
@@ -685,10 +709,11 @@ impl SceneMap {
         window: Vec<WindowInstance>,
         views: &[WindowView],
         stamp_nanos: i64,
-        same_kind: impl Fn(&[f32], &[f32]) -> bool,
+        kinds: impl Kinds,
     ) -> Result<FusionReport, GraphError> {
+        let same_kind = |a: &[f32], b: &[f32]| kinds.same_kind(a, b);
         let mut report = self.fuse_with(window, views, stamp_nanos, &same_kind)?;
-        let folded = self.fold_fragments(same_kind);
+        let folded = self.fold_fragments(&kinds);
         for (absorbed, survivor) in &folded {
             for id in report.assigned.iter_mut().filter(|id| *id == absorbed) {
                 id.clone_from(survivor);
@@ -706,11 +731,9 @@ impl SceneMap {
     /// prototypes and names agree, and a chair against a table never folds into it. A leg under a
     /// surface ([`is_leg_of`]) folds whatever it is named, both being objects (`same_kind` of a
     /// prototype with itself: not structure). Returns (absorbed, survivor) id pairs.
-    pub fn fold_fragments(
-        &mut self,
-        same_kind: impl Fn(&[f32], &[f32]) -> bool,
-    ) -> Vec<(String, String)> {
+    pub fn fold_fragments(&mut self, kinds: &impl Kinds) -> Vec<(String, String)> {
         let p = self.params;
+        let same_kind = |a: &[f32], b: &[f32]| kinds.same_kind(a, b);
         let mut keep = vec![true; self.instances.len()];
         let is_object =
             |prototype: &[f32]| !prototype.is_empty() && same_kind(prototype, prototype);
@@ -733,6 +756,17 @@ impl SceneMap {
             }
             cosine(pa, pb) >= p.duplicate_similarity
                 && footprints.overlap(instances, a, b) >= FRAGMENT_TOUCH
+                && kinds.largest_side(pa).is_none_or(|side| {
+                    let both: Vec<Vec3> = instances[a]
+                        .gaussians
+                        .means
+                        .iter()
+                        .chain(&instances[b].gaussians.means)
+                        .copied()
+                        .collect();
+                    let union = fit_object_box(&both, DEFAULT_TRIM);
+                    union.size.x.max(union.size.y) <= FRAGMENT_SIDE_MARGIN * side
+                })
         });
         let mut index = 0;
         self.instances.retain(|_| {
@@ -917,7 +951,7 @@ mod tests {
         ] {
             let mut map = SceneMap::new(FusionParams::default());
             map.instances = vec![fragment(younger, 2), fragment(older, 1)];
-            let folded = map.fold_fragments(|_, _| true);
+            let folded = map.fold_fragments(&|_: &[f32], _: &[f32]| true);
             assert_eq!(folded, vec![(younger.to_owned(), older.to_owned())]);
             assert_eq!(map.instances.len(), 1);
             assert_eq!(map.instances[0].id, older);

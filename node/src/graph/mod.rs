@@ -18,6 +18,6 @@ pub mod scene_graph;
 pub mod walls;
 
 pub use error::GraphError;
-pub use fusion::{FusionReport, SceneMap};
+pub use fusion::{FusionReport, Kinds, SceneMap};
 pub use instance::{cosine, Fitted, FusionParams, Instance};
 pub use scene_graph::{EdgeView, GraphEdge, GraphNode, NodeView, SceneGraph};

@@ -338,7 +338,8 @@ impl<'a> KindMemo<'a> {
         alike_kinds(self.best_phrase(a), self.best_phrase(b))
     }
 
-    fn best_phrase(&self, prototype: &[f32]) -> Option<String> {
+    /// [`Vocabulary::best_phrase`], remembered.
+    pub fn best_phrase(&self, prototype: &[f32]) -> Option<String> {
         let key: Vec<u32> = prototype.iter().map(|v| v.to_bits()).collect();
         self.best
             .borrow_mut()
