@@ -166,6 +166,30 @@ pub(super) fn deepened(fitted: OrientedBox, shift: DVec2, extent: f64) -> Orient
     completed
 }
 
+/// The class name and ground-truth box of every object, room by room, in the first 200 scenes
+/// of the simulator's `train` split (the rooms the models were trained on): what the size
+/// priors here and the fold thresholds in [`super::fusion`] are checked against.
+#[cfg(test)]
+pub(crate) fn training_rooms() -> Vec<Vec<(&'static str, OrientedBox)>> {
+    use groupforward_sim::procedural::{generate, Split};
+    use groupforward_sim::simulation::Simulation;
+    let classes = groupforward_sim::library::classes();
+    (0..200)
+        .map_while(|index| generate(Split::Train, index))
+        .map(|file| {
+            let sim = Simulation::new(file).expect("a training scene loads");
+            sim.scene
+                .objects
+                .iter()
+                .filter_map(|object| {
+                    let class = classes.iter().find(|c| c.id == object.class_id)?;
+                    Some((class.name, crate::eval::run::truth_box(object)))
+                })
+                .collect()
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -290,22 +314,9 @@ mod tests {
     fn training_boxes(
         measure: impl Fn(&OrientedBox) -> f64,
     ) -> std::collections::HashMap<&'static str, Vec<f64>> {
-        use groupforward_sim::procedural::{generate, Split};
-        use groupforward_sim::simulation::Simulation;
-        let classes = groupforward_sim::library::classes();
         let mut measured: std::collections::HashMap<&str, Vec<f64>> = Default::default();
-        for index in 0..200 {
-            let Some(file) = generate(Split::Train, index) else {
-                break;
-            };
-            let sim = Simulation::new(file).expect("a training scene loads");
-            for object in &sim.scene.objects {
-                let Some(class) = classes.iter().find(|c| c.id == object.class_id) else {
-                    continue;
-                };
-                let b = crate::eval::run::truth_box(object);
-                measured.entry(class.name).or_default().push(measure(&b));
-            }
+        for (name, b) in training_rooms().into_iter().flatten() {
+            measured.entry(name).or_default().push(measure(&b));
         }
         measured
     }

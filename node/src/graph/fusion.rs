@@ -78,6 +78,11 @@ fn birth_order(instance: &Instance) -> (i64, usize, &str) {
     )
 }
 
+/// Whether `prototype` names an object, not structure: `same_kind` of it with itself.
+fn names_an_object(same_kind: &dyn Fn(&[f32], &[f32]) -> bool, prototype: &[f32]) -> bool {
+    !prototype.is_empty() && same_kind(prototype, prototype)
+}
+
 /// Two objects whose boxes overlap at least this much (3D IoU) are one, whatever their names
 /// and prototypes: solid things do not pass through each other, and in the 200 training rooms no
 /// two objects' true boxes overlap by more than 0.04 (a pillow on a bed). The map's boxes are
@@ -735,8 +740,7 @@ impl SceneMap {
         let p = self.params;
         let same_kind = |a: &[f32], b: &[f32]| kinds.same_kind(a, b);
         let mut keep = vec![true; self.instances.len()];
-        let is_object =
-            |prototype: &[f32]| !prototype.is_empty() && same_kind(prototype, prototype);
+        let is_object = |prototype: &[f32]| names_an_object(&same_kind, prototype);
         let folded = self.fold_pairs(&mut keep, |instances, footprints, a, b| {
             let (pa, pb) = (&instances[a].prototype, &instances[b].prototype);
             let (bounds_a, bounds_b) = (footprints.bounds[a], footprints.bounds[b]);
@@ -833,8 +837,7 @@ impl SceneMap {
         // matter (at 500 instances, fitting every box was most of a window's fusion). A pair
         // that folds asks for both boxes first, so the survivor's box is the one it had before.
         let mut boxes: Vec<Option<OrientedBox>> = (0..self.instances.len()).map(|_| None).collect();
-        let is_object =
-            |prototype: &[f32]| !prototype.is_empty() && same_kind(prototype, prototype);
+        let is_object = |prototype: &[f32]| names_an_object(same_kind, prototype);
         self.fold_pairs(keep, |instances, footprints, a, b| {
             let (pa, pb) = (&instances[a].prototype, &instances[b].prototype);
             let similar = !pa.is_empty()
@@ -901,22 +904,10 @@ mod tests {
     fn no_two_objects_of_the_training_rooms_fill_one_space() {
         // ONE_SPACE_IOU against the data: the largest 3D IoU of two objects' true boxes in the
         // first 200 training rooms is a small share of it.
-        use groupforward_sim::procedural::{generate, Split};
-        use groupforward_sim::simulation::Simulation;
         let mut largest = 0.0f64;
-        for index in 0..200 {
-            let Some(file) = generate(Split::Train, index) else {
-                break;
-            };
-            let sim = Simulation::new(file).expect("a training scene loads");
-            let boxes: Vec<OrientedBox> = sim
-                .scene
-                .objects
-                .iter()
-                .map(crate::eval::run::truth_box)
-                .collect();
-            for (k, a) in boxes.iter().enumerate() {
-                for b in &boxes[k + 1..] {
+        for room in super::super::amodal::training_rooms() {
+            for (k, (_, a)) in room.iter().enumerate() {
+                for (_, b) in &room[k + 1..] {
                     largest = largest.max(a.iou(b));
                 }
             }
