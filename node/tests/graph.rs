@@ -908,6 +908,45 @@ fn instances_filling_one_space_are_one_object_whatever_they_are_named() {
     assert_eq!(walled.instances.len(), 2);
 }
 
+#[test]
+fn a_sighting_named_structure_does_not_turn_an_object_into_structure() {
+    // A cabinet seen once, then its front seen flat and named structure by a window (its
+    // features close enough to the cabinet's to pass association's gate). It stays a cabinet: the
+    // structure sighting is its own instance. The other way, a wall piece first, then a sighting
+    // named an object at its place, still goes into it.
+    let structure = |p: &[f32]| p[2] > p[0];
+    let kind = |a: &[f32], b: &[f32]| !structure(a) && !structure(b);
+    let cabinet = WindowInstance {
+        gaussians: cuboid(Vec3::new(3.0, 0.0, 0.5), Vec3::new(0.25, 0.4, 0.5)),
+        prototype: vec![1.0, 0.4, 0.0],
+        support: 300,
+    };
+    let front = WindowInstance {
+        gaussians: cuboid(Vec3::new(2.76, 0.0, 0.5), Vec3::new(0.01, 0.4, 0.5)),
+        prototype: vec![0.7, 0.4, 0.75],
+        support: 300,
+    };
+    let params = FusionParams::default();
+    let similarity = {
+        let (a, b) = (&cabinet.prototype, &front.prototype);
+        let dot: f32 = a.iter().zip(b).map(|(x, y)| x * y).sum();
+        let norm = |v: &[f32]| v.iter().map(|x| x * x).sum::<f32>().sqrt();
+        dot / (norm(a) * norm(b))
+    };
+    assert!(similarity >= params.min_similarity, "{similarity}");
+    let mut map = SceneMap::new(params);
+    map.fuse_named(vec![cabinet.clone()], &[], 1, kind).unwrap();
+    let report = map.fuse_named(vec![front.clone()], &[], 2, kind).unwrap();
+    assert_eq!(report.born, 1, "{report:?}");
+    assert_eq!(map.instances.len(), 2);
+    assert_eq!(map.instances[0].prototype, cabinet.prototype);
+    assert!(!structure(&map.instances[0].prototype));
+    let mut walls = SceneMap::new(params);
+    walls.fuse_named(vec![front], &[], 1, kind).unwrap();
+    let report = walls.fuse_named(vec![cabinet], &[], 2, kind).unwrap();
+    assert_eq!((report.merged, walls.instances.len()), (1, 1), "{report:?}");
+}
+
 /// Kinds by equal prototypes, with sizes: the first entry above 0.5 is a chair (at most
 /// 0.52 m long), anything else a bed (2.34 m).
 struct SizedKinds;

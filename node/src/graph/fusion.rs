@@ -484,6 +484,7 @@ impl SceneMap {
             }
         }
         let mut report = FusionReport::default();
+        let is_object = |prototype: &[f32]| names_an_object(same_kind, prototype);
         // Association scores: geometry (nearest-neighbour overlap within a radius that follows
         // the point spacing) and semantics (prototype cosine), gated.
         let window_footprints: Vec<Footprint> = window
@@ -527,6 +528,12 @@ impl SceneMap {
                 let (a, b) = (&window[i].prototype, &self.instances[j].prototype);
                 let similarity = (!a.is_empty() && !b.is_empty()).then(|| cosine(a, b));
                 if overlap < p.min_overlap || similarity.is_some_and(|s| s < p.min_similarity) {
+                    continue;
+                }
+                // A sighting the vocabulary calls structure does not go into an object: a
+                // cabinet's front, seen flat and named a wall once, turned the cabinet into
+                // structure, which the object list leaves out.
+                if !a.is_empty() && !is_object(a) && is_object(b) {
                     continue;
                 }
                 let score = match similarity {
