@@ -29,6 +29,36 @@ pub const TYPICAL_DEPTH_M: &[(&str, f64)] = &[
     ("box", 0.29),
 ];
 
+/// The smallest depth (shorter horizontal side, m) an object of each box-like name has: the
+/// smallest over the same training rooms' ground-truth boxes
+/// (`the_smallest_depths_are_the_training_rooms_smallest` recomputes them). A face with a wall
+/// closer behind it than this is not the front of such an object but its back: the object
+/// stands in front of it.
+pub const SMALLEST_DEPTH_M: &[(&str, f64)] = &[
+    ("chair", 0.38),
+    ("sofa", 0.77),
+    ("table", 0.68),
+    ("desk", 0.60),
+    ("bed", 1.36),
+    ("cabinet", 0.43),
+    ("bookshelf", 0.27),
+    ("refrigerator", 0.56),
+    ("monitor", 0.14),
+    ("toilet", 0.34),
+    ("sink", 0.37),
+    ("box", 0.26),
+];
+
+/// The value of `name` in a table of per-name measures.
+fn by_name(table: &[(&str, f64)], name: &str) -> Option<f64> {
+    table.iter().find(|(n, _)| *n == name).map(|(_, v)| *v)
+}
+
+/// The smallest depth objects called `name` have, if known ([`SMALLEST_DEPTH_M`]).
+pub fn smallest_depth(name: &str) -> Option<f64> {
+    by_name(SMALLEST_DEPTH_M, name)
+}
+
 /// A box is extended only when it is thinner than this share of the typical depth.
 pub const THIN_SHARE: f64 = 0.35;
 /// Its face (the wide horizontal side and the height) at least this large: smaller pieces are
@@ -39,10 +69,7 @@ const MIN_VIEW_OFFSET_M: f64 = 0.1;
 
 /// The typical depth of `name`'s objects, if it has one.
 pub fn typical_depth(name: &str) -> Option<f64> {
-    TYPICAL_DEPTH_M
-        .iter()
-        .find(|(n, _)| *n == name)
-        .map(|(_, d)| *d)
+    by_name(TYPICAL_DEPTH_M, name)
 }
 
 /// `fitted` extended along its thin horizontal axis, away from `viewpoint`, to `depth`, when it
@@ -58,13 +85,7 @@ pub fn complete_away_from(fitted: OrientedBox, viewpoint: Vec3, depth: f64) -> O
     if thin >= THIN_SHARE * depth || wide < MIN_FACE_M || size.z < MIN_FACE_M {
         return fitted;
     }
-    let thin_along_x = size.x <= size.y;
-    let (c, s) = (fitted.yaw.cos(), fitted.yaw.sin());
-    let normal = if thin_along_x {
-        DVec2::new(c, s)
-    } else {
-        DVec2::new(-s, c)
-    };
+    let normal = thin_axis(&fitted);
     let offset = (fitted.centre - viewpoint).truncate().dot(normal);
     if offset.abs() < MIN_VIEW_OFFSET_M {
         return fitted;
@@ -72,6 +93,28 @@ pub fn complete_away_from(fitted: OrientedBox, viewpoint: Vec3, depth: f64) -> O
     // The seen face stays where it is; the box grows behind it, on the far side from the viewer.
     let away = normal * offset.signum();
     deepened(fitted, away * (depth - thin) / 2.0, depth)
+}
+
+/// The unit ground-plane axis along `fitted`'s thinner horizontal side (a face's normal).
+fn thin_axis(fitted: &OrientedBox) -> DVec2 {
+    let (c, s) = (fitted.yaw.cos(), fitted.yaw.sin());
+    if fitted.size.x <= fitted.size.y {
+        DVec2::new(c, s)
+    } else {
+        DVec2::new(-s, c)
+    }
+}
+
+/// `fitted` extended along its thin horizontal axis toward `viewpoint`, to `depth`: the face
+/// seen is the object's far side (its back against something), the rest stands in front of it.
+/// The same conditions as [`complete_away_from`]; otherwise `fitted` as it is.
+pub fn complete_toward(fitted: OrientedBox, viewpoint: Vec3, depth: f64) -> OrientedBox {
+    // The viewpoint mirrored through the face's vertical plane: away from it is toward the viewer.
+    let normal = thin_axis(&fitted);
+    let v = viewpoint.as_dvec3();
+    let offset = (v - fitted.centre).truncate().dot(normal);
+    let mirrored = v - (normal * (2.0 * offset)).extend(0.0);
+    complete_away_from(fitted, mirrored.as_vec3(), depth)
 }
 
 /// Names of objects that stand on the floor (every one of them in the simulator's rooms, and
@@ -146,10 +189,7 @@ pub const LARGEST_SIDE_M: &[(&str, f64)] = &[
 
 /// The longest horizontal side objects called `name` have, if known ([`LARGEST_SIDE_M`]).
 pub fn largest_side(name: &str) -> Option<f64> {
-    LARGEST_SIDE_M
-        .iter()
-        .find(|(n, _)| *n == name)
-        .map(|(_, side)| *side)
+    by_name(LARGEST_SIDE_M, name)
 }
 
 /// `fitted` with its thinner horizontal side `extent` long and its centre moved by `shift` in
@@ -218,6 +258,12 @@ mod tests {
                 |b: &OrientedBox| (b.centre - viewer).truncate().dot(normal) - b.size.y / 2.0;
             assert!((near(&completed) - near(&face)).abs() < 1e-9);
             assert!((completed.centre - face.centre).truncate().dot(normal) > 0.2);
+            // Toward the viewer instead: the same box on the viewer's side of the face.
+            let toward = complete_toward(face, viewer.as_vec3(), 0.45);
+            assert!((toward.size - completed.size).length() < 1e-9, "{toward:?}");
+            assert!((toward.centre - face.centre).truncate().dot(normal) < -0.2);
+            let far = |b: &OrientedBox| (b.centre - viewer).truncate().dot(normal) + b.size.y / 2.0;
+            assert!((far(&toward) - far(&face)).abs() < 1e-9);
         }
     }
 
@@ -244,6 +290,7 @@ mod tests {
         let face = backrest(0.0);
         for viewer in [Vec3::NAN, Vec3::new(f32::INFINITY, 0.0, 0.0)] {
             assert_eq!(complete_away_from(face, viewer, 0.45), face);
+            assert_eq!(complete_toward(face, viewer, 0.45), face);
         }
         assert_eq!(complete_away_from(face, Vec3::ZERO, 0.0), face);
         let flat = OrientedBox {
@@ -364,6 +411,20 @@ mod tests {
                 (largest - shipped).abs() <= 0.01,
                 "{name}: shipped {shipped}, train's largest {largest:.3}"
             );
+        }
+    }
+
+    #[test]
+    fn the_smallest_depths_are_the_training_rooms_smallest() {
+        let depths = training_boxes(|b| b.size.x.min(b.size.y));
+        assert_eq!(SMALLEST_DEPTH_M.len(), TYPICAL_DEPTH_M.len());
+        for (name, shipped) in SMALLEST_DEPTH_M {
+            let smallest = depths[name].iter().copied().fold(f64::INFINITY, f64::min);
+            assert!(
+                (smallest - shipped).abs() <= 0.01,
+                "{name}: shipped {shipped}, train's smallest {smallest:.3}"
+            );
+            assert!(typical_depth(name).is_some_and(|typical| typical >= *shipped));
         }
     }
 

@@ -199,6 +199,22 @@ impl Walls {
             .map(|wall| (normal, wall))
     }
 
+    /// The distance from the vertical surface `fitted` (thin along one horizontal axis) to a wall
+    /// plane parallel to it on the side `towards` points to, within [`MAX_BACK_M`], read as
+    /// [`Walls::wall_behind`] reads it (structure beside and above the surface).
+    pub fn wall_towards(&self, fitted: &OrientedBox, towards: DVec2) -> Option<f64> {
+        let (bottom, top) = z_range(fitted);
+        let (normal, thin, depths) =
+            self.depths_beside(fitted, (bottom + ON_FLOOR_M, top + BESIDE_M));
+        let side = normal.dot(towards).signum();
+        let beyond: Vec<f64> = depths
+            .into_iter()
+            .map(|d| d * side)
+            .filter(|&d| d > thin / 2.0 + BIN_M && d <= MAX_BACK_M)
+            .collect();
+        plane_depth(&beyond)
+    }
+
     /// `fitted` completed back to the wall behind it when it is a vertical surface standing on
     /// the floor in front of a wall; otherwise `fitted` as it is.
     pub fn complete(&self, fitted: OrientedBox) -> OrientedBox {
@@ -321,8 +337,9 @@ pub fn object_list<'a>(
             let box_like = name.is_some_and(|n| amodal::typical_depth(n).is_some());
             let fitted = fit(i, box_like);
             let publish = |b: OrientedBox| {
-                published_box(b, &walls, map, vocabulary)
-                    .map(|placed| seen_from_one_side(placed, i, name))
+                published_box(b, &walls, map, vocabulary).map(|placed| {
+                    seen_from_one_side(placed, i, name, || map_walls(&walls, map, vocabulary))
+                })
             };
             // A face seen through range noise is a slab as deep as the noise, which no
             // completion takes for a face; its surface is completed where a clean camera's
@@ -348,14 +365,37 @@ fn deepened_face(surface: &OrientedBox, completed: &OrientedBox) -> bool {
 
 /// `placed` completed away from the instance's viewpoint to its name's typical depth when it is
 /// an object's face seen from one side ([`amodal`]); as it is without a name, a depth or a
-/// viewpoint.
-fn seen_from_one_side(placed: OrientedBox, instance: &Instance, name: Option<&str>) -> OrientedBox {
+/// viewpoint. Objects do not go through walls: with a wall closer behind the face than the
+/// typical depth, the object fills the space back to it, and with one closer than any object of
+/// the name is deep ([`amodal::SMALLEST_DEPTH_M`]), the face is the object's back (a chair's
+/// backrest seen over a table, from its seat's side) and the object stands in front of it.
+fn seen_from_one_side<'w>(
+    placed: OrientedBox,
+    instance: &Instance,
+    name: Option<&str>,
+    walls: impl FnOnce() -> &'w Walls,
+) -> OrientedBox {
     let (Some(name), Some(viewpoint)) = (name, instance.viewpoint) else {
         return placed;
     };
-    match amodal::typical_depth(name) {
-        Some(depth) => amodal::complete_away_from(placed, viewpoint, depth),
-        None => placed,
+    let Some(depth) = amodal::typical_depth(name) else {
+        return placed;
+    };
+    let completed = amodal::complete_away_from(placed, viewpoint, depth);
+    let grown = (completed.centre - placed.centre).truncate();
+    if completed == placed || grown.length() <= 0.0 {
+        return completed;
+    }
+    let Some(gap) = walls().wall_towards(&placed, grown.normalize()) else {
+        return completed;
+    };
+    let thin = placed.size.x.min(placed.size.y);
+    if gap + thin / 2.0 >= depth {
+        completed
+    } else if amodal::smallest_depth(name).is_some_and(|smallest| gap + thin / 2.0 < smallest) {
+        amodal::complete_toward(placed, viewpoint, depth)
+    } else {
+        amodal::complete_away_from(placed, viewpoint, gap + thin / 2.0)
     }
 }
 
@@ -597,6 +637,58 @@ mod tests {
         assert_eq!(with_surfaces[1].1, points_only[1].1);
         assert_eq!(with_surfaces[2].1, points_only[2].1);
         assert!(thin(&with_surfaces[2].1) < 0.4, "{:?}", with_surfaces[2].1);
+    }
+
+    #[test]
+    fn a_face_completed_away_from_the_viewer_never_goes_through_the_wall_behind_it() {
+        // The room of the hidden wall (y = 0); the viewer at y = 3.5 (instance_of). Faces 0.45 m
+        // wide, 0.5 to 0.9 m up (a chair's backrest seen over a table), named chair (typical
+        // depth 0.45 m, none in the training rooms shallower than 0.38 m).
+        let walls = room_with_a_hidden_wall();
+        let backrest = |y: f32| {
+            instance_of(
+                "chair",
+                &wall_y(y, (2.2, 2.65), (0.5, 0.9)),
+                [1.0, 0.0, 0.0],
+                0.0,
+            )
+        };
+        // The box's extent along world y (any yaw).
+        let extent_y = |b: &OrientedBox| {
+            let half = (b.yaw.sin().abs() * b.size.x + b.yaw.cos().abs() * b.size.y) / 2.0;
+            (b.centre.y - half, b.centre.y + half)
+        };
+        let complete = |y: f32| {
+            let instance = backrest(y);
+            let face = instance.oriented_box();
+            seen_from_one_side(face, &instance, Some("chair"), || &walls)
+        };
+        // 1.5 m out in the room: the chair lies behind its face, 0.45 m deep.
+        let (near, far) = extent_y(&complete(1.5));
+        assert!(
+            (near - 1.05).abs() < 0.02 && (far - 1.5).abs() < 0.02,
+            "{near} {far}"
+        );
+        // 0.3 m from the wall: no chair fits behind it, so the face is the chair's back and the
+        // seat is on the viewer's side.
+        let (near, far) = extent_y(&complete(0.3));
+        assert!(
+            (near - 0.3).abs() < 0.02 && (far - 0.75).abs() < 0.02,
+            "{near} {far}"
+        );
+        // 0.4 m from the wall: a chair as shallow as the shallowest fills the space to the wall.
+        let (near, far) = extent_y(&complete(0.4));
+        assert!(
+            near.abs() < 0.02 && (far - 0.4).abs() < 0.02,
+            "{near} {far}"
+        );
+        // Without a name with a depth, the face is what it is.
+        let instance = backrest(0.3);
+        let face = instance.oriented_box();
+        assert_eq!(
+            seen_from_one_side(face, &instance, Some("lamp"), || &walls),
+            face
+        );
     }
 
     #[test]
