@@ -909,6 +909,51 @@ fn instances_filling_one_space_are_one_object_whatever_they_are_named() {
 }
 
 #[test]
+fn an_instance_a_fold_grows_is_judged_again_in_the_same_fusion() {
+    // A cabinet seen whole, and its lower third seen apart and named "box". A later window sees
+    // its middle third, also a "box": it touches the lower third (a fragment: it folds into it),
+    // and only together do the two fill the cabinet's space (box IoU 0.3 each, 0.6 together).
+    // The grown piece folds into the cabinet in that same fusion, although the cabinet and the
+    // piece were both in the map before it and neither was seen by the window.
+    let kind = |a: &[f32], b: &[f32]| a == b;
+    let piece = |bottom: f32, height: f32| WindowInstance {
+        gaussians: cuboid(
+            Vec3::new(3.0, 0.0, bottom + height / 2.0),
+            Vec3::new(0.5, 0.5, height / 2.0),
+        ),
+        prototype: CHAIR.to_vec(),
+        support: 100,
+    };
+    let cabinet = WindowInstance {
+        gaussians: cuboid(Vec3::new(3.0, 0.0, 0.5), Vec3::splat(0.5)),
+        prototype: TABLE.to_vec(),
+        support: 300,
+    };
+    let mut map = SceneMap::new(FusionParams::default());
+    map.fuse_named(vec![cabinet, piece(0.0, 0.32)], &[], 1, kind)
+        .unwrap();
+    assert_eq!(
+        map.instances.len(),
+        2,
+        "a third of the cabinet's space is not all of it"
+    );
+    let report = map
+        .fuse_named(vec![piece(0.38, 0.36)], &[], 2, kind)
+        .unwrap();
+    assert_eq!(report.born, 1, "{report:?}");
+    assert_eq!(map.instances.len(), 1, "{report:?}");
+    assert_eq!(map.instances[0].id, "inst_000001");
+    assert_eq!(
+        report.absorbed,
+        [
+            ("inst_000003".to_owned(), "inst_000002".to_owned()),
+            ("inst_000002".to_owned(), "inst_000001".to_owned()),
+        ]
+    );
+    assert_eq!(report.assigned, ["inst_000001"], "ids follow both folds");
+}
+
+#[test]
 fn a_sighting_named_structure_does_not_turn_an_object_into_structure() {
     // A cabinet seen once, then its front seen flat and named structure by a window (its
     // features close enough to the cabinet's to pass association's gate). It stays a cabinet: the

@@ -47,6 +47,22 @@ pub struct FusionReport {
     pub cleared: usize,
 }
 
+impl FusionReport {
+    /// Record folds (absorbed, survivor): window instances that went into an absorbed instance
+    /// are reported under its survivor. Returns the survivors' ids.
+    fn record_folds(&mut self, folded: Vec<(String, String)>) -> rustc_hash::FxHashSet<String> {
+        let mut survivors = rustc_hash::FxHashSet::default();
+        for (absorbed, survivor) in folded {
+            for id in self.assigned.iter_mut().filter(|id| **id == absorbed) {
+                id.clone_from(&survivor);
+            }
+            survivors.insert(survivor.clone());
+            self.absorbed.push((absorbed, survivor));
+        }
+        survivors
+    }
+}
+
 /// The persistent map.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct SceneMap {
@@ -682,13 +698,14 @@ impl SceneMap {
             }
         }
         // Duplicates the association could not see (two window instances of one object born in
-        // the same window, or parts that grew together): fold them, younger into older.
-        for (absorbed, survivor) in self.fold_duplicates(&mut keep, same_kind) {
-            for id in report.assigned.iter_mut().filter(|id| **id == absorbed) {
-                id.clone_from(&survivor);
-            }
-            report.absorbed.push((absorbed, survivor));
-        }
+        // the same window, or parts that grew together): fold them, younger into older. Only
+        // pairs with an instance this window changed or gave birth to: the others were judged,
+        // as they are, by an earlier fusion.
+        let touched: Vec<bool> = (0..self.instances.len())
+            .map(|j| j >= matched.len() || matched[j])
+            .collect();
+        let folded = self.fold_duplicates(&mut keep, &touched, same_kind);
+        report.record_folds(folded);
         // Clearing radius around the newest camera.
         if let Some(newest) = views.iter().max_by_key(|v| v.keyframe.stamp_nanos) {
             let here = newest.keyframe.world_from_camera.translation.as_vec3();
@@ -699,11 +716,7 @@ impl SceneMap {
                 }
             }
         }
-        let mut index = 0;
-        self.instances.retain(|_| {
-            index += 1;
-            keep[index - 1]
-        });
+        self.retain_marked(&keep);
         for view in views {
             self.keyframes.push_back(view.keyframe.clone());
         }
@@ -713,9 +726,10 @@ impl SceneMap {
         Ok(report)
     }
 
-    /// [`SceneMap::fuse`], then [`SceneMap::fold_fragments`] with `same_kind`; the report's ids
-    /// follow the folds (a window instance assigned to a fragment that folded is reported with
-    /// the instance it went into).
+    /// [`SceneMap::fuse`], then [`SceneMap::fold_fragments`] with `kinds`, and both fold rules
+    /// again over what each fold grew until neither folds; the report's ids follow the folds (a
+    /// window instance assigned to a fragment that folded is reported with the instance it went
+    /// into). A map built by fusion has no pair left that either rule would fold.
     pub fn fuse_named(
         &mut self,
         window: Vec<WindowInstance>,
@@ -725,14 +739,46 @@ impl SceneMap {
     ) -> Result<FusionReport, GraphError> {
         let same_kind = |a: &[f32], b: &[f32]| kinds.same_kind(a, b);
         let mut report = self.fuse_with(window, views, stamp_nanos, &same_kind)?;
-        let folded = self.fold_fragments(&kinds);
-        for (absorbed, survivor) in &folded {
-            for id in report.assigned.iter_mut().filter(|id| *id == absorbed) {
-                id.clone_from(survivor);
+        // Pairs are judged again only where an instance changed: this window's (any other pair
+        // was judged, as it is, by an earlier fusion), then, rule after rule, the survivors of
+        // the last folds, until neither rule folds anything.
+        let changed: rustc_hash::FxHashSet<String> = report
+            .assigned
+            .iter()
+            .chain(report.absorbed.iter().map(|(_, survivor)| survivor))
+            .cloned()
+            .collect();
+        let mut touched = self.marks(&changed);
+        loop {
+            let folded = self.fold_fragments_of(&kinds, &touched);
+            let survivors = report.record_folds(folded);
+            if survivors.is_empty() {
+                break;
             }
+            let mut keep = vec![true; self.instances.len()];
+            let folded = self.fold_duplicates(&mut keep, &self.marks(&survivors), &same_kind);
+            self.retain_marked(&keep);
+            let survivors = report.record_folds(folded);
+            if survivors.is_empty() {
+                break;
+            }
+            touched = self.marks(&survivors);
         }
-        report.absorbed.extend(folded);
         Ok(report)
+    }
+
+    /// For each instance, whether `ids` holds its id.
+    fn marks(&self, ids: &rustc_hash::FxHashSet<String>) -> Vec<bool> {
+        self.instances.iter().map(|i| ids.contains(&i.id)).collect()
+    }
+
+    /// Drop the instances `keep` does not mark.
+    fn retain_marked(&mut self, keep: &[bool]) {
+        let mut index = 0;
+        self.instances.retain(|_| {
+            index += 1;
+            keep[index - 1]
+        });
     }
 
     /// Fold fragments of one object into the oldest of them: instances that touch (at least
@@ -744,56 +790,71 @@ impl SceneMap {
     /// surface ([`is_leg_of`]) folds whatever it is named, both being objects (`same_kind` of a
     /// prototype with itself: not structure). Returns (absorbed, survivor) id pairs.
     pub fn fold_fragments(&mut self, kinds: &impl Kinds) -> Vec<(String, String)> {
+        let every = vec![true; self.instances.len()];
+        self.fold_fragments_of(kinds, &every)
+    }
+
+    /// [`SceneMap::fold_fragments`] over the pairs with at least one instance `touched` marks,
+    /// then over the pairs of each pass's survivors until a pass folds nothing.
+    fn fold_fragments_of(&mut self, kinds: &impl Kinds, touched: &[bool]) -> Vec<(String, String)> {
         let p = self.params;
         let same_kind = |a: &[f32], b: &[f32]| kinds.same_kind(a, b);
         let mut keep = vec![true; self.instances.len()];
         let is_object = |prototype: &[f32]| names_an_object(&same_kind, prototype);
-        let folded = self.fold_pairs(&mut keep, |instances, footprints, a, b| {
-            let (pa, pb) = (&instances[a].prototype, &instances[b].prototype);
-            let (bounds_a, bounds_b) = (footprints.bounds[a], footprints.bounds[b]);
-            if is_object(pa)
-                && is_object(pb)
-                && (is_leg_of(bounds_a, bounds_b) || is_leg_of(bounds_b, bounds_a))
-            {
-                return true;
+        let mut touched = touched.to_vec();
+        let mut folded = Vec::new();
+        loop {
+            let pass = self.fold_pairs(&mut keep, &touched, |instances, footprints, a, b| {
+                let (pa, pb) = (&instances[a].prototype, &instances[b].prototype);
+                let (bounds_a, bounds_b) = (footprints.bounds[a], footprints.bounds[b]);
+                if is_object(pa)
+                    && is_object(pb)
+                    && (is_leg_of(bounds_a, bounds_b) || is_leg_of(bounds_b, bounds_a))
+                {
+                    return true;
+                }
+                if pa.is_empty() || pb.is_empty() || !same_kind(pa, pb) {
+                    return false;
+                }
+                let (back_a, spread_a) = footprints.back_bounds(instances, a);
+                let (back_b, spread_b) = footprints.back_bounds(instances, b);
+                if is_back_of(back_a, bounds_b, spread_a) || is_back_of(back_b, bounds_a, spread_b)
+                {
+                    return true;
+                }
+                cosine(pa, pb) >= p.duplicate_similarity
+                    && footprints.overlap(instances, a, b) >= FRAGMENT_TOUCH
+                    && kinds.largest_side(pa).is_none_or(|side| {
+                        let both: Vec<Vec3> = instances[a]
+                            .gaussians
+                            .means
+                            .iter()
+                            .chain(&instances[b].gaussians.means)
+                            .copied()
+                            .collect();
+                        let union = fit_object_box(&both, DEFAULT_TRIM);
+                        union.size.x.max(union.size.y) <= FRAGMENT_SIDE_MARGIN * side
+                    })
+            });
+            if pass.is_empty() {
+                break;
             }
-            if pa.is_empty() || pb.is_empty() || !same_kind(pa, pb) {
-                return false;
-            }
-            let (back_a, spread_a) = footprints.back_bounds(instances, a);
-            let (back_b, spread_b) = footprints.back_bounds(instances, b);
-            if is_back_of(back_a, bounds_b, spread_a) || is_back_of(back_b, bounds_a, spread_b) {
-                return true;
-            }
-            cosine(pa, pb) >= p.duplicate_similarity
-                && footprints.overlap(instances, a, b) >= FRAGMENT_TOUCH
-                && kinds.largest_side(pa).is_none_or(|side| {
-                    let both: Vec<Vec3> = instances[a]
-                        .gaussians
-                        .means
-                        .iter()
-                        .chain(&instances[b].gaussians.means)
-                        .copied()
-                        .collect();
-                    let union = fit_object_box(&both, DEFAULT_TRIM);
-                    union.size.x.max(union.size.y) <= FRAGMENT_SIDE_MARGIN * side
-                })
-        });
-        let mut index = 0;
-        self.instances.retain(|_| {
-            index += 1;
-            keep[index - 1]
-        });
+            touched = self.survivors_of(&keep, &pass);
+            folded.extend(pass);
+        }
+        self.retain_marked(&keep);
         folded
     }
 
-    /// Every pair of live instances, oldest first (so everything folds into the instance the
-    /// user saw first): where `one_object` says so, the younger is absorbed into the older and
+    /// Every pair of live instances, at least one of them `touched` (changed since the pair was
+    /// last judged), oldest first (so everything folds into the
+    /// instance the user saw first): where `one_object` says so, the younger is absorbed into the older and
     /// marked dead in `keep`. Point footprints are built only when `one_object` asks for them, and
     /// again after their instance absorbs another. Returns (absorbed, survivor) id pairs.
     fn fold_pairs(
         &mut self,
         keep: &mut [bool],
+        touched: &[bool],
         mut one_object: impl FnMut(&[Instance], &mut Footprints, usize, usize) -> bool,
     ) -> Vec<(String, String)> {
         let p = self.params;
@@ -816,7 +877,10 @@ impl SceneMap {
                 continue;
             }
             for &b in &order[position + 1..] {
-                if keep[b] && one_object(&self.instances, &mut footprints, a, b) {
+                if !keep[b] || !(touched[a] || touched[b]) {
+                    continue;
+                }
+                if one_object(&self.instances, &mut footprints, a, b) {
                     let absorbed = self.instances[b].clone();
                     self.instances[a].absorb(&absorbed, p);
                     footprints.built[a] = None;
@@ -837,37 +901,67 @@ impl SceneMap {
     fn fold_duplicates(
         &mut self,
         keep: &mut [bool],
+        touched: &[bool],
         same_kind: &dyn Fn(&[f32], &[f32]) -> bool,
     ) -> Vec<(String, String)> {
         let p = self.params;
-        // Boxes as the instances were before any fold, fitted only for pairs near enough to
+        // Boxes as the instances were before the pass, fitted only for pairs near enough to
         // matter (at 500 instances, fitting every box was most of a window's fusion). A pair
-        // that folds asks for both boxes first, so the survivor's box is the one it had before.
+        // that folds asks for both boxes first, so the survivor's box is the one it had before
+        // until the next pass.
         let mut boxes: Vec<Option<OrientedBox>> = (0..self.instances.len()).map(|_| None).collect();
         let is_object = |prototype: &[f32]| names_an_object(same_kind, prototype);
-        self.fold_pairs(keep, |instances, footprints, a, b| {
-            let (pa, pb) = (&instances[a].prototype, &instances[b].prototype);
-            let similar = !pa.is_empty()
-                && !pb.is_empty()
-                && cosine(pa, pb) >= p.duplicate_similarity
-                && same_kind(pa, pb);
-            if similar && p.duplicate_iou <= 0.0 {
-                // Prototypes alone decide.
-                return true;
+        let mut touched = touched.to_vec();
+        let mut folded = Vec::new();
+        loop {
+            let pass = self.fold_pairs(keep, &touched, |instances, footprints, a, b| {
+                let (pa, pb) = (&instances[a].prototype, &instances[b].prototype);
+                let similar = !pa.is_empty()
+                    && !pb.is_empty()
+                    && cosine(pa, pb) >= p.duplicate_similarity
+                    && same_kind(pa, pb);
+                if similar && p.duplicate_iou <= 0.0 {
+                    // Prototypes alone decide.
+                    return true;
+                }
+                let objects = similar || (is_object(pa) && is_object(pb));
+                if !objects || footprints.far_apart(a, b) {
+                    return false;
+                }
+                let box_a = *boxes[a].get_or_insert_with(|| instances[a].oriented_box());
+                let box_b = *boxes[b].get_or_insert_with(|| instances[b].oriented_box());
+                let iou = box_a.iou(&box_b);
+                if iou >= ONE_SPACE_IOU {
+                    return true;
+                }
+                // Point footprints only where boxes alone do not decide.
+                similar && (iou >= p.duplicate_iou || footprints.overlap(instances, a, b) >= 0.5)
+            });
+            if pass.is_empty() {
+                return folded;
             }
-            let objects = similar || (is_object(pa) && is_object(pb));
-            if !objects || footprints.far_apart(a, b) {
-                return false;
+            touched = self.survivors_of(keep, &pass);
+            for (j, survived) in touched.iter().enumerate() {
+                if *survived {
+                    boxes[j] = None;
+                }
             }
-            let box_a = *boxes[a].get_or_insert_with(|| instances[a].oriented_box());
-            let box_b = *boxes[b].get_or_insert_with(|| instances[b].oriented_box());
-            let iou = box_a.iou(&box_b);
-            if iou >= ONE_SPACE_IOU {
-                return true;
-            }
-            // Point footprints only where boxes alone do not decide.
-            similar && (iou >= p.duplicate_iou || footprints.overlap(instances, a, b) >= 0.5)
-        })
+            folded.extend(pass);
+        }
+    }
+
+    /// Marks the live instances that survived `folded`: they changed after some of their pairs
+    /// were judged, so the next pass judges their pairs again.
+    fn survivors_of(&self, keep: &[bool], folded: &[(String, String)]) -> Vec<bool> {
+        let survivors: rustc_hash::FxHashSet<&str> = folded
+            .iter()
+            .map(|(_, survivor)| survivor.as_str())
+            .collect();
+        self.instances
+            .iter()
+            .zip(keep)
+            .map(|(i, &alive)| alive && survivors.contains(i.id.as_str()))
+            .collect()
     }
 }
 
