@@ -908,29 +908,38 @@ fn instances_filling_one_space_are_one_object_whatever_they_are_named() {
     assert_eq!(walled.instances.len(), 2);
 }
 
-#[test]
-fn an_instance_a_fold_grows_is_judged_again_in_the_same_fusion() {
-    // A cabinet seen whole, and its lower third seen apart and named "box". A later window sees
-    // its middle third, also a "box": it touches the lower third (a fragment: it folds into it),
-    // and only together do the two fill the cabinet's space (box IoU 0.3 each, 0.6 together).
-    // The grown piece folds into the cabinet in that same fusion, although the cabinet and the
-    // piece were both in the map before it and neither was seen by the window.
-    let kind = |a: &[f32], b: &[f32]| a == b;
-    let piece = |bottom: f32, height: f32| WindowInstance {
+/// A 1 m cabinet standing at (3, 0), named like a table.
+fn cabinet() -> WindowInstance {
+    WindowInstance {
+        gaussians: cuboid(Vec3::new(3.0, 0.0, 0.5), Vec3::splat(0.5)),
+        prototype: TABLE.to_vec(),
+        support: 300,
+    }
+}
+
+/// A horizontal slice of [`cabinet`]'s space from `bottom` up, named like a chair.
+fn cabinet_part(bottom: f32, height: f32) -> WindowInstance {
+    WindowInstance {
         gaussians: cuboid(
             Vec3::new(3.0, 0.0, bottom + height / 2.0),
             Vec3::new(0.5, 0.5, height / 2.0),
         ),
         prototype: CHAIR.to_vec(),
         support: 100,
-    };
-    let cabinet = WindowInstance {
-        gaussians: cuboid(Vec3::new(3.0, 0.0, 0.5), Vec3::splat(0.5)),
-        prototype: TABLE.to_vec(),
-        support: 300,
-    };
+    }
+}
+
+#[test]
+fn an_instance_a_fold_grows_is_judged_again_in_the_same_fusion() {
+    // A cabinet seen whole, and its lower third seen apart and named "box". A later window sees
+    // its middle third, also a "box": it touches the lower third across a 6 cm seam (a fragment:
+    // it folds into it), and only together do the two fill the cabinet's space (box IoU 0.32
+    // and 0.36 each, about 0.7 together).
+    // The grown piece folds into the cabinet in that same fusion, although the cabinet and the
+    // piece were both in the map before it and neither was seen by the window.
+    let kind = |a: &[f32], b: &[f32]| a == b;
     let mut map = SceneMap::new(FusionParams::default());
-    map.fuse_named(vec![cabinet, piece(0.0, 0.32)], &[], 1, kind)
+    map.fuse_named(vec![cabinet(), cabinet_part(0.0, 0.32)], &[], 1, kind)
         .unwrap();
     assert_eq!(
         map.instances.len(),
@@ -938,7 +947,7 @@ fn an_instance_a_fold_grows_is_judged_again_in_the_same_fusion() {
         "a third of the cabinet's space is not all of it"
     );
     let report = map
-        .fuse_named(vec![piece(0.38, 0.36)], &[], 2, kind)
+        .fuse_named(vec![cabinet_part(0.38, 0.36)], &[], 2, kind)
         .unwrap();
     assert_eq!(report.born, 1, "{report:?}");
     assert_eq!(map.instances.len(), 1, "{report:?}");
@@ -951,6 +960,34 @@ fn an_instance_a_fold_grows_is_judged_again_in_the_same_fusion() {
         ]
     );
     assert_eq!(report.assigned, ["inst_000001"], "ids follow both folds");
+}
+
+#[test]
+fn pieces_that_fold_together_and_then_fill_an_object_s_space_fold_into_it() {
+    // The same without a vocabulary, within one rule: a cabinet seen whole, then a window with
+    // its lower part and an overlapping middle part (IoU with the cabinet 0.32 and 0.38, under
+    // the one-space 0.4). The pair judged first (cabinet, lower part) does not fold; the two
+    // parts then fold together (alike, most of the lower one's points on the other), and the
+    // grown part fills the cabinet's space (IoU 0.58): it is judged again in the same fusion.
+    let mut map = SceneMap::new(FusionParams::default());
+    map.fuse(vec![cabinet()], &[], 1).unwrap();
+    let report = map
+        .fuse(
+            vec![cabinet_part(0.0, 0.32), cabinet_part(0.2, 0.38)],
+            &[],
+            2,
+        )
+        .unwrap();
+    assert_eq!(report.born, 2, "{report:?}");
+    assert_eq!(
+        report.absorbed,
+        [
+            ("inst_000003".to_owned(), "inst_000002".to_owned()),
+            ("inst_000002".to_owned(), "inst_000001".to_owned()),
+        ]
+    );
+    assert_eq!(map.instances.len(), 1);
+    assert_eq!(report.assigned, ["inst_000001", "inst_000001"]);
 }
 
 #[test]

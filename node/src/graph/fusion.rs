@@ -285,6 +285,8 @@ struct Footprints {
     bounds: Vec<(Vec3, Vec3)>,
     /// [`Footprints::back_bounds`] of instances seen through range noise, on first use.
     spread: Vec<Option<(Vec3, Vec3)>>,
+    /// Boxes as the instances were at the start of the pass ([`Footprints::oriented_box`]).
+    boxes: Vec<Option<OrientedBox>>,
 }
 
 /// Share of an instance's points left out on each side of each axis by the bounds
@@ -294,6 +296,14 @@ const BACK_SPREAD_SHARE: f32 = 0.05;
 const BACK_SPREAD_SIGMAS: f32 = 3.29;
 
 impl Footprints {
+    /// Instance `k`'s box as it was at the start of the pass, fitted on first use: only pairs
+    /// near enough to matter ask (at 500 instances, fitting every box was most of a window's
+    /// fusion). A pair that folds asks for both boxes first, so a survivor keeps the box it had
+    /// until the next pass.
+    fn oriented_box(&mut self, instances: &[Instance], k: usize) -> OrientedBox {
+        *self.boxes[k].get_or_insert_with(|| instances[k].oriented_box())
+    }
+
     /// The bounds [`is_back_of`] judges instance `k` as a back by, with the spread range noise
     /// adds to them along the view: its bounds for a clean camera; seen through range noise
     /// (σ measured), the bounds of its points' 5th to 95th percentiles per axis (a few points
@@ -794,63 +804,55 @@ impl SceneMap {
         self.fold_fragments_of(kinds, &every)
     }
 
-    /// [`SceneMap::fold_fragments`] over the pairs with at least one instance `touched` marks,
-    /// then over the pairs of each pass's survivors until a pass folds nothing.
+    /// [`SceneMap::fold_fragments`] over the pairs with at least one instance `touched` marks
+    /// ([`SceneMap::fold_pairs`]).
     fn fold_fragments_of(&mut self, kinds: &impl Kinds, touched: &[bool]) -> Vec<(String, String)> {
         let p = self.params;
         let same_kind = |a: &[f32], b: &[f32]| kinds.same_kind(a, b);
         let mut keep = vec![true; self.instances.len()];
         let is_object = |prototype: &[f32]| names_an_object(&same_kind, prototype);
-        let mut touched = touched.to_vec();
-        let mut folded = Vec::new();
-        loop {
-            let pass = self.fold_pairs(&mut keep, &touched, |instances, footprints, a, b| {
-                let (pa, pb) = (&instances[a].prototype, &instances[b].prototype);
-                let (bounds_a, bounds_b) = (footprints.bounds[a], footprints.bounds[b]);
-                if is_object(pa)
-                    && is_object(pb)
-                    && (is_leg_of(bounds_a, bounds_b) || is_leg_of(bounds_b, bounds_a))
-                {
-                    return true;
-                }
-                if pa.is_empty() || pb.is_empty() || !same_kind(pa, pb) {
-                    return false;
-                }
-                let (back_a, spread_a) = footprints.back_bounds(instances, a);
-                let (back_b, spread_b) = footprints.back_bounds(instances, b);
-                if is_back_of(back_a, bounds_b, spread_a) || is_back_of(back_b, bounds_a, spread_b)
-                {
-                    return true;
-                }
-                cosine(pa, pb) >= p.duplicate_similarity
-                    && footprints.overlap(instances, a, b) >= FRAGMENT_TOUCH
-                    && kinds.largest_side(pa).is_none_or(|side| {
-                        let both: Vec<Vec3> = instances[a]
-                            .gaussians
-                            .means
-                            .iter()
-                            .chain(&instances[b].gaussians.means)
-                            .copied()
-                            .collect();
-                        let union = fit_object_box(&both, DEFAULT_TRIM);
-                        union.size.x.max(union.size.y) <= FRAGMENT_SIDE_MARGIN * side
-                    })
-            });
-            if pass.is_empty() {
-                break;
+        let folded = self.fold_pairs(&mut keep, touched, |instances, footprints, a, b| {
+            let (pa, pb) = (&instances[a].prototype, &instances[b].prototype);
+            let (bounds_a, bounds_b) = (footprints.bounds[a], footprints.bounds[b]);
+            if is_object(pa)
+                && is_object(pb)
+                && (is_leg_of(bounds_a, bounds_b) || is_leg_of(bounds_b, bounds_a))
+            {
+                return true;
             }
-            touched = self.survivors_of(&keep, &pass);
-            folded.extend(pass);
-        }
+            if pa.is_empty() || pb.is_empty() || !same_kind(pa, pb) {
+                return false;
+            }
+            let (back_a, spread_a) = footprints.back_bounds(instances, a);
+            let (back_b, spread_b) = footprints.back_bounds(instances, b);
+            if is_back_of(back_a, bounds_b, spread_a) || is_back_of(back_b, bounds_a, spread_b) {
+                return true;
+            }
+            cosine(pa, pb) >= p.duplicate_similarity
+                && footprints.overlap(instances, a, b) >= FRAGMENT_TOUCH
+                && kinds.largest_side(pa).is_none_or(|side| {
+                    let both: Vec<Vec3> = instances[a]
+                        .gaussians
+                        .means
+                        .iter()
+                        .chain(&instances[b].gaussians.means)
+                        .copied()
+                        .collect();
+                    let union = fit_object_box(&both, DEFAULT_TRIM);
+                    union.size.x.max(union.size.y) <= FRAGMENT_SIDE_MARGIN * side
+                })
+        });
         self.retain_marked(&keep);
         folded
     }
 
-    /// Every pair of live instances, at least one of them `touched` (changed since the pair was
-    /// last judged), oldest first (so everything folds into the
-    /// instance the user saw first): where `one_object` says so, the younger is absorbed into the older and
-    /// marked dead in `keep`. Point footprints are built only when `one_object` asks for them, and
-    /// again after their instance absorbs another. Returns (absorbed, survivor) id pairs.
+    /// Every pair of live instances with at least one of them `touched` (changed since the pair
+    /// was last judged), oldest first (so everything folds into the instance the user saw
+    /// first): where `one_object` says so, the younger is absorbed into the older and marked dead
+    /// in `keep`. Then pass after pass over the pairs of the last pass's survivors (they changed
+    /// after some of their pairs were judged) until a pass folds nothing. Point footprints are
+    /// built only when `one_object` asks for them, and again after their instance absorbs
+    /// another; bounds and boxes afresh in the pass after. Returns (absorbed, survivor) id pairs.
     fn fold_pairs(
         &mut self,
         keep: &mut [bool],
@@ -868,31 +870,47 @@ impl SceneMap {
                 .map(|i| bounds(&i.gaussians))
                 .collect(),
             spread: (0..n).map(|_| None).collect(),
+            boxes: (0..n).map(|_| None).collect(),
         };
         let mut order: Vec<usize> = (0..n).collect();
         order.sort_by_key(|&i| birth_order(&self.instances[i]));
         let mut folded = Vec::new();
-        for (position, &a) in order.iter().enumerate() {
-            if !keep[a] {
-                continue;
-            }
-            for &b in &order[position + 1..] {
-                if !keep[b] || !(touched[a] || touched[b]) {
+        let mut touched = touched.to_vec();
+        loop {
+            let mut grew = vec![false; n];
+            for (position, &a) in order.iter().enumerate() {
+                if !keep[a] {
                     continue;
                 }
-                if one_object(&self.instances, &mut footprints, a, b) {
-                    let absorbed = self.instances[b].clone();
-                    self.instances[a].absorb(&absorbed, p);
-                    footprints.built[a] = None;
-                    footprints.spread[a] = None;
-                    let ((lo_a, hi_a), (lo_b, hi_b)) = (footprints.bounds[a], footprints.bounds[b]);
-                    footprints.bounds[a] = (lo_a.min(lo_b), hi_a.max(hi_b));
-                    keep[b] = false;
-                    folded.push((absorbed.id, self.instances[a].id.clone()));
+                for &b in &order[position + 1..] {
+                    if !keep[b] || !(touched[a] || touched[b]) {
+                        continue;
+                    }
+                    if one_object(&self.instances, &mut footprints, a, b) {
+                        let absorbed = self.instances[b].clone();
+                        self.instances[a].absorb(&absorbed, p);
+                        footprints.built[a] = None;
+                        footprints.spread[a] = None;
+                        let ((lo_a, hi_a), (lo_b, hi_b)) =
+                            (footprints.bounds[a], footprints.bounds[b]);
+                        footprints.bounds[a] = (lo_a.min(lo_b), hi_a.max(hi_b));
+                        keep[b] = false;
+                        grew[a] = true;
+                        folded.push((absorbed.id, self.instances[a].id.clone()));
+                    }
                 }
             }
+            if !grew.contains(&true) {
+                return folded;
+            }
+            for (k, &changed) in grew.iter().enumerate() {
+                if changed {
+                    footprints.bounds[k] = bounds(&self.instances[k].gaussians);
+                    footprints.boxes[k] = None;
+                }
+            }
+            touched = grew;
         }
-        folded
     }
 
     /// Fold instances that are one object (similar prototypes and overlapping boxes, or two
@@ -905,63 +923,30 @@ impl SceneMap {
         same_kind: &dyn Fn(&[f32], &[f32]) -> bool,
     ) -> Vec<(String, String)> {
         let p = self.params;
-        // Boxes as the instances were before the pass, fitted only for pairs near enough to
-        // matter (at 500 instances, fitting every box was most of a window's fusion). A pair
-        // that folds asks for both boxes first, so the survivor's box is the one it had before
-        // until the next pass.
-        let mut boxes: Vec<Option<OrientedBox>> = (0..self.instances.len()).map(|_| None).collect();
         let is_object = |prototype: &[f32]| names_an_object(same_kind, prototype);
-        let mut touched = touched.to_vec();
-        let mut folded = Vec::new();
-        loop {
-            let pass = self.fold_pairs(keep, &touched, |instances, footprints, a, b| {
-                let (pa, pb) = (&instances[a].prototype, &instances[b].prototype);
-                let similar = !pa.is_empty()
-                    && !pb.is_empty()
-                    && cosine(pa, pb) >= p.duplicate_similarity
-                    && same_kind(pa, pb);
-                if similar && p.duplicate_iou <= 0.0 {
-                    // Prototypes alone decide.
-                    return true;
-                }
-                let objects = similar || (is_object(pa) && is_object(pb));
-                if !objects || footprints.far_apart(a, b) {
-                    return false;
-                }
-                let box_a = *boxes[a].get_or_insert_with(|| instances[a].oriented_box());
-                let box_b = *boxes[b].get_or_insert_with(|| instances[b].oriented_box());
-                let iou = box_a.iou(&box_b);
-                if iou >= ONE_SPACE_IOU {
-                    return true;
-                }
-                // Point footprints only where boxes alone do not decide.
-                similar && (iou >= p.duplicate_iou || footprints.overlap(instances, a, b) >= 0.5)
-            });
-            if pass.is_empty() {
-                return folded;
+        self.fold_pairs(keep, touched, |instances, footprints, a, b| {
+            let (pa, pb) = (&instances[a].prototype, &instances[b].prototype);
+            let similar = !pa.is_empty()
+                && !pb.is_empty()
+                && cosine(pa, pb) >= p.duplicate_similarity
+                && same_kind(pa, pb);
+            if similar && p.duplicate_iou <= 0.0 {
+                // Prototypes alone decide.
+                return true;
             }
-            touched = self.survivors_of(keep, &pass);
-            for (j, survived) in touched.iter().enumerate() {
-                if *survived {
-                    boxes[j] = None;
-                }
+            let objects = similar || (is_object(pa) && is_object(pb));
+            if !objects || footprints.far_apart(a, b) {
+                return false;
             }
-            folded.extend(pass);
-        }
-    }
-
-    /// Marks the live instances that survived `folded`: they changed after some of their pairs
-    /// were judged, so the next pass judges their pairs again.
-    fn survivors_of(&self, keep: &[bool], folded: &[(String, String)]) -> Vec<bool> {
-        let survivors: rustc_hash::FxHashSet<&str> = folded
-            .iter()
-            .map(|(_, survivor)| survivor.as_str())
-            .collect();
-        self.instances
-            .iter()
-            .zip(keep)
-            .map(|(i, &alive)| alive && survivors.contains(i.id.as_str()))
-            .collect()
+            let box_a = footprints.oriented_box(instances, a);
+            let box_b = footprints.oriented_box(instances, b);
+            let iou = box_a.iou(&box_b);
+            if iou >= ONE_SPACE_IOU {
+                return true;
+            }
+            // Point footprints only where boxes alone do not decide.
+            similar && (iou >= p.duplicate_iou || footprints.overlap(instances, a, b) >= 0.5)
+        })
     }
 }
 
@@ -1163,6 +1148,7 @@ mod tests {
                 built: vec![None, None],
                 bounds: vec![bounds(&a), bounds(&b)],
                 spread: vec![None, None],
+                boxes: vec![None, None],
             };
             if !footprints.far_apart(0, 1) {
                 continue;
