@@ -45,13 +45,13 @@ golden: setup
 # Criterion benches, then the side-by-side measurements the README shows (CSV, Markdown, SVG).
 bench: setup
 	$(CARGO) bench -p groupforward -p groupforward-sim
-	$(CARGO) run --release -p groupforward -- bench grouping --python $(VENV)/bin/python --out node/doc/bench/grouping
-	$(CARGO) run --release -p groupforward -- bench graph --out node/doc/bench/graph
-	$(CARGO) run --release -p groupforward -- bench refer --out node/doc/bench/refer
+	$(CARGO) run --release -p groupforward-cli -- bench grouping --python $(VENV)/bin/python --out node/doc/bench/grouping
+	$(CARGO) run --release -p groupforward-cli -- bench graph --out node/doc/bench/graph
+	$(CARGO) run --release -p groupforward-cli -- bench refer --out node/doc/bench/refer
 
 # What accuracy costs in time: the settings sweep the README's Pareto chart comes from (~20 min).
 sweep: setup
-	$(CARGO) run -p groupforward -- bench sweep --rounds 2 --out node/doc/bench/sweep
+	$(CARGO) run -p groupforward-cli -- bench sweep --rounds 2 --out node/doc/bench/sweep
 
 # Native ROS 2 (the `ros2` feature, through r2r): ROS 2 Jazzy from PyPI wheels in $(ROS2_PREFIX)
 # with the message packages the wheels lack built from msgs/ros (launch/ros2/setup.sh), then the
@@ -64,7 +64,7 @@ ros2-setup:
 
 ros2 ros2-test: SHELL := /bin/bash
 ros2: ros2-setup
-	source launch/ros2/env.sh $(ROS2_PREFIX) && $(CARGO) build -p groupforward --features ros2
+	source launch/ros2/env.sh $(ROS2_PREFIX) && $(CARGO) build -p groupforward-cli --features ros2
 	mkdir -p $(ROS2_PREFIX)/bin && cp target/debug/groupforward $(ROS2_PREFIX)/bin/groupforward
 
 # The ros2 transport's CDR against rcl's serializers, then an rclpy node (real ROS 2, rmw_fastrtps)
@@ -77,7 +77,7 @@ ros2-test: setup ros2
 # The reliability soak at full size (10^5 bad messages, a 5-minute two-camera flood; ~7 min).
 # CI runs it at a reduced size (tests/tests/soak.rs).
 soak: setup build
-	$(CARGO) run -p groupforward -- bench soak --out node/doc/bench/soak
+	$(CARGO) run -p groupforward-cli -- bench soak --out node/doc/bench/soak
 
 # Training (never part of CI): PyTorch and friends into train/.venv, and sim datasets for it.
 train-setup:

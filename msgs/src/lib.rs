@@ -7,7 +7,10 @@
 //! - [`idl`]: `.msg` / `.srv` parsing and RIHS01 type hashes (REP-2011).
 //! - [`rmw_zenoh`]: key expressions, liveliness tokens and sample attachments of ROS 2's rmw_zenoh,
 //!   so ROS 2 tools see the node's topics and services with no bridge.
+//! - [`bag`]: rosbag2 MCAP bags as `ros2 bag record` writes them (the simulator's recordings and
+//!   the node's own `record` output).
 
+pub mod bag;
 pub mod cdr;
 pub mod idl;
 pub mod rmw_zenoh;

@@ -23,16 +23,17 @@
 //! | [`refer`] | referring (RSRF): parse, retrieve, reason (built-in or a VLM), evidence, answers |
 //! | [`config`] | assembles the stages' sections into the node's YAML config |
 //! | [`node`] | the loop: input queue, window worker, services, status |
+//! | [`outputs`] | the published messages: detections, instance arrays, masks, markers, cloud, scene graph |
+//! | [`record`] | the node's own rosbag2 recording of what it publishes |
+//! | [`client`] | a client of a running node: its services and JSON API over zenoh |
 //! | [`replay`] | publish a rosbag2 MCAP bag as a live robot would |
-//! | [`eval`] | sim scenes through the node's stages, the map scored against ground truth |
-//! | [`soak`] | the node under hostile traffic and a two-camera flood, for `bench soak` |
-//! | [`demo`] | sim scene → bag → replay → node → queries, in one process over an embedded zenoh peer |
 //!
-//! The command line (`src/cli/`, one file per subcommand) is the binary's, not the library's.
+//! This library is what a robot runs; it does not link the simulator. The evaluation, demo and
+//! soak harness is `groupforward-harness`, the command line `groupforward-cli`
+//! (ARCHITECTURE.md at the repository's root).
 
+pub mod client;
 pub mod config;
-pub mod demo;
-pub mod eval;
 pub mod exposure;
 pub mod frame;
 pub mod graph;
@@ -45,7 +46,6 @@ pub mod recon;
 pub mod record;
 pub mod refer;
 pub mod replay;
-pub mod soak;
 pub mod timing;
 pub mod transport;
 pub mod window;

@@ -8,7 +8,7 @@ use std::io::BufWriter;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 
-use groupforward_sim::bag::{BagError, BagWriter, OfferedQos};
+use groupforward_msgs::bag::{BagError, BagWriter, OfferedQos};
 
 use crate::transport::{Endpoint, JsonHandler, Publisher, Result, ServiceHandler, Sink, Transport};
 

@@ -5,11 +5,11 @@
 //! trajectory, effects). [`procedural`]: seeded, physically plausible layouts in named splits.
 //! [`render`]: a CPU ray caster producing RGB, metric depth, instance and class ids.
 //! [`effects`] and [`simulation`]: a scene played over time with only the effects it lists.
-//! [`bag`] and [`record`]: rosbag2 MCAP bags of what a robot records plus `/gt/...` topics.
+//! [`record`]: rosbag2 MCAP bags (written by `groupforward_msgs::bag`) of what a robot records
+//! plus `/gt/...` topics.
 //! [`dataset`]: training datasets on disk. [`referring`]: referring expressions generated from
 //! ground truth. [`testcard`]: a plumbing rig for the node's ingest.
 
-pub mod bag;
 pub mod dataset;
 pub mod effects;
 pub mod library;

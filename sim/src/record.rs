@@ -18,11 +18,11 @@ use groupforward_msgs::vision_msgs::{
 };
 use rayon::prelude::*;
 
-use crate::bag::{BagError, BagWriter, OfferedQos};
 use crate::library;
 use crate::render::Scene;
 use crate::scene::{mount_pose, RobotPose};
 use crate::simulation::{SimFrame, SimView, Simulation};
+use groupforward_msgs::bag::{BagError, BagWriter, OfferedQos};
 
 #[derive(Debug, thiserror::Error)]
 pub enum RecordError {

@@ -48,6 +48,29 @@ impl PlacedObject {
         (lo, hi)
     }
 
+    /// The object's own box: the union of its parts in its frame, scaled, as its world centre and
+    /// its size along its axes (turned by `yaw` about z). `None` for an object without parts.
+    pub fn oriented_extent(&self) -> Option<(DVec3, DVec3)> {
+        let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
+        for part in &self.parts {
+            let (centre, half) = part.extent();
+            lo = lo.min(centre - half);
+            hi = hi.max(centre + half);
+        }
+        if !lo.is_finite() {
+            return None;
+        }
+        let local_centre = (lo + hi) / 2.0 * self.scale;
+        let (c, s) = (self.yaw.cos(), self.yaw.sin());
+        let centre = self.position
+            + DVec3::new(
+                c * local_centre.x - s * local_centre.y,
+                s * local_centre.x + c * local_centre.y,
+                local_centre.z,
+            );
+        Some((centre, (hi - lo) * self.scale))
+    }
+
     /// Signed distance (metres) from a world point to the object's surface.
     pub fn distance(&self, p: DVec3) -> f64 {
         let local = self.to_local(p);

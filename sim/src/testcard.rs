@@ -203,8 +203,8 @@ impl TestCard {
 
 impl TestCard {
     /// A rosbag2 MCAP bag of `frames` frames (depth only if `with_depth`), in memory.
-    pub fn bag(&self, frames: u64, with_depth: bool) -> crate::bag::Result<Vec<u8>> {
-        let mut bag = crate::bag::BagWriter::new(std::io::Cursor::new(Vec::new()))?;
+    pub fn bag(&self, frames: u64, with_depth: bool) -> groupforward_msgs::bag::Result<Vec<u8>> {
+        let mut bag = groupforward_msgs::bag::BagWriter::new(std::io::Cursor::new(Vec::new()))?;
         bag.write(TF_STATIC_TOPIC, self.stamp(0).as_nanos(), &self.tf_static())?;
         for index in 0..frames {
             let frame = self.frame(index);

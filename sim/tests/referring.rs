@@ -10,7 +10,9 @@ use std::collections::BTreeMap;
 use glam::{DMat3, DQuat, DVec3};
 use groupforward_sim::procedural::{generate, Split};
 use groupforward_sim::referring::ViewPose;
-use groupforward_sim::referring::{color_name, scene_expressions, Expression, Geometry, Relation};
+use groupforward_sim::referring::{
+    color_name, geometry as object_geometry, scene_expressions, Expression, Geometry, Relation,
+};
 use groupforward_sim::render::Scene;
 
 /// A point in the camera frame of `view` (REP-103 optical: x right, y down, z forward).
@@ -55,7 +57,7 @@ fn benchmark(count: u64) -> Vec<(Scene, Vec<Expression>)> {
 }
 
 fn geometry(scene: &Scene, id: u16) -> Geometry {
-    Geometry::new(scene.objects.iter().find(|o| o.instance_id == id).unwrap())
+    object_geometry(scene.objects.iter().find(|o| o.instance_id == id).unwrap())
 }
 
 #[test]
@@ -94,7 +96,7 @@ fn expressions_mean_exactly_their_targets() {
             let same_class: Vec<Geometry> = scene
                 .objects
                 .iter()
-                .map(Geometry::new)
+                .map(object_geometry)
                 .filter(|g| g.class == e.target_class)
                 .collect();
             for t in &targets {
@@ -154,7 +156,7 @@ fn expressions_mean_exactly_their_targets() {
                 Relation::Function => {
                     let classes = groupforward_sim::library::classes();
                     let affordance = e.text.rsplit("you can ").next().unwrap();
-                    for g in scene.objects.iter().map(Geometry::new) {
+                    for g in scene.objects.iter().map(object_geometry) {
                         let can = classes
                             .iter()
                             .any(|c| c.name == g.class && c.affordances.contains(&affordance));
@@ -177,7 +179,7 @@ fn expressions_mean_exactly_their_targets() {
                     let anchors: Vec<Geometry> = scene
                         .objects
                         .iter()
-                        .map(Geometry::new)
+                        .map(object_geometry)
                         .filter(|g| g.class == anchor_class)
                         .collect();
                     for g in &same_class {

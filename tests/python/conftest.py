@@ -48,7 +48,7 @@ def ts():
 @pytest.fixture(scope='session')
 def binary():
     if not BIN.exists():
-        pytest.fail(f'{BIN} does not exist: build it with `cargo build -p groupforward` (make test does)')
+        pytest.fail(f'{BIN} does not exist: build it with `cargo build -p groupforward-cli` (make test does)')
     return BIN
 
 

@@ -13,8 +13,8 @@ use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 
+use groupforward::client::{call_service, query_json, wait_for};
 use groupforward::config::Config;
-use groupforward::demo::{call_service, query_json, wait_for};
 use groupforward::transport::{open_session, ZenohMode, ZenohSection, ZenohTransport};
 use groupforward_msgs::gf_msgs::{ListInstancesRequest, MapPathRequest};
 use groupforward_msgs::rmw_zenoh;

@@ -8,8 +8,8 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 
+use groupforward::client::{query_json, wait_for};
 use groupforward::config::Config;
-use groupforward::demo::{query_json, wait_for};
 use groupforward::replay::{replay_buffers, ReplayOptions};
 use groupforward::transport::ZenohSection;
 use groupforward::transport::{open_session, ZenohTransport};

@@ -5,8 +5,8 @@
 
 use std::collections::BTreeSet;
 
-use groupforward::demo::{run_demo, DemoOptions};
 use groupforward::refer::response::numeric_id;
+use groupforward_harness::demo::{run_demo, DemoOptions};
 use groupforward_msgs::visualization_msgs::Marker;
 
 #[test]

@@ -8,12 +8,12 @@
 use std::path::Path;
 
 use groupforward::config::Config;
-use groupforward::eval::refer::{ask_scene, held_out_views, Referrer, SceneTruth};
-use groupforward::eval::run::run_scene;
-use groupforward::eval::score::{score_map, score_windows, Outcome};
 use groupforward::graph::persist;
 use groupforward::model::ModelsSection;
 use groupforward::window::WindowModels;
+use groupforward_harness::eval::refer::{ask_scene, held_out_views, Referrer, SceneTruth};
+use groupforward_harness::eval::run::run_scene;
+use groupforward_harness::eval::score::{score_map, score_windows, Outcome};
 use groupforward_sim::scene::SceneFile;
 
 #[test]

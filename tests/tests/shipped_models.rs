@@ -8,7 +8,6 @@
 
 use std::path::Path;
 
-use groupforward::eval::window::synced_frame;
 use groupforward::frame::{RgbImage, SyncedFrame};
 use groupforward::group::semantics::Vocabulary;
 use groupforward::group::semantics::{default_vocabulary, OTHER_PHRASE};
@@ -23,6 +22,7 @@ use groupforward::model::{init_runtime, SessionOptions};
 use groupforward::recon::metrics::adjusted_rand_index;
 use groupforward::recon::Rigid;
 use groupforward::window::{pass_with_cache, window_pass, FeatureCache};
+use groupforward_harness::eval::window::synced_frame;
 use groupforward_sim::effects::Preset;
 use groupforward_sim::procedural::{generate, Split};
 use groupforward_sim::simulation::Simulation;

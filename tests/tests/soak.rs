@@ -4,7 +4,7 @@
 //! queries at 20 Hz, and stays correct. Timings are reported by
 //! `groupforward bench soak`, never asserted here.
 
-use groupforward::soak::{run_soak, SoakOptions};
+use groupforward_harness::soak::{run_soak, SoakOptions};
 use groupforward_sim::scene::SceneFile;
 
 #[test]

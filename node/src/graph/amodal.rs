@@ -223,7 +223,9 @@ pub(crate) fn training_rooms() -> Vec<Vec<(&'static str, OrientedBox)>> {
                 .iter()
                 .filter_map(|object| {
                     let class = classes.iter().find(|c| c.id == object.class_id)?;
-                    Some((class.name, crate::eval::run::truth_box(object)))
+                    let (centre, size) = object.oriented_extent()?;
+                    let yaw = object.yaw;
+                    Some((class.name, OrientedBox { centre, size, yaw }.canonical()))
                 })
                 .collect()
         })

@@ -28,14 +28,42 @@ pub struct SemanticsSection {
 /// What walls, floor and anything unnamed are called (the semantic model's explicit `other` class).
 pub const OTHER_PHRASE: &str = "other";
 
-/// The simulator's object classes (ScanNet names) and `other`: what the shipped semantic model
-/// was trained on.
+/// The default vocabulary file: the object classes the shipped semantic model was trained on (the
+/// simulator's, ScanNet names) and what everything else is called. Generated from the simulator
+/// by `groupforward sim vocabulary`; the harness's tests keep the two in sync.
+pub const DEFAULT_VOCABULARY_YAML: &str = include_str!("../../data/default_vocabulary.yaml");
+
+/// A vocabulary file: its classes in order ([`OTHER_PHRASE`] is not one: the node adds it).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct VocabularyFile {
+    pub classes: Vec<VocabularyClass>,
+}
+
+/// One class of a vocabulary file.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct VocabularyClass {
+    pub name: String,
+}
+
+impl VocabularyFile {
+    /// The phrases instances are named with: the classes' names, then [`OTHER_PHRASE`].
+    pub fn phrases(&self) -> Vec<String> {
+        self.classes
+            .iter()
+            .map(|c| c.name.clone())
+            .chain([OTHER_PHRASE.to_owned()])
+            .collect()
+    }
+}
+
+/// The default vocabulary's phrases ([`DEFAULT_VOCABULARY_YAML`]).
 pub fn default_vocabulary() -> Vec<String> {
-    groupforward_sim::library::classes()
-        .iter()
-        .map(|c| c.name.to_owned())
-        .chain([OTHER_PHRASE.to_owned()])
-        .collect()
+    // The file is compiled in and a unit test parses it: it cannot fail at run time.
+    serde_yaml_ng::from_str::<VocabularyFile>(DEFAULT_VOCABULARY_YAML)
+        .map(|file| file.phrases())
+        .unwrap_or_else(|e| panic!("the embedded default vocabulary does not parse: {e}"))
 }
 pub const DEFAULT_SEMANTIC_TEMPERATURE: f32 = 0.05;
 pub const DEFAULT_HYPOTHESES: usize = 3;
@@ -360,4 +388,25 @@ pub fn softmax(values: &[f32], temperature: f32) -> Vec<f32> {
         .collect();
     let total: f32 = weights.iter().sum();
     weights.iter().map(|w| w / total).collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_default_vocabulary_file_parses_to_named_classes_and_other_last() {
+        let phrases = default_vocabulary();
+        assert!(phrases.len() > 1);
+        assert_eq!(phrases.last().map(String::as_str), Some(OTHER_PHRASE));
+        assert!(phrases[..phrases.len() - 1]
+            .iter()
+            .all(|p| !p.trim().is_empty() && p != OTHER_PHRASE));
+    }
+
+    #[test]
+    fn a_vocabulary_file_with_an_unknown_field_is_refused() {
+        let text = "classes:\n  - name: whiteboard\n    colour: white\n";
+        assert!(serde_yaml_ng::from_str::<VocabularyFile>(text).is_err());
+    }
 }

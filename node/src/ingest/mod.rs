@@ -23,7 +23,7 @@ pub mod sync;
 pub mod tf;
 pub mod validate;
 
-pub(crate) mod test_messages;
+pub mod test_messages;
 
 pub use config::{CameraConfig, ImageTransport, IngestSection, TfSection};
 pub use decode::{decode_compressed, decode_depth, decode_image};

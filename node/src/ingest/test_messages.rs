@@ -1,7 +1,5 @@
-//! Messages for the ingest tests, and the hostile ones of the node's flood test and `bench soak`.
-
-// Outside tests only the hostile generator and what it builds on are used.
-#![cfg_attr(not(test), allow(dead_code))]
+//! Messages for tests: well-formed images, camera info and TF for the ingest tests, and the
+//! hostile ones of the node's flood test and the harness's soak (`bench soak`).
 
 use groupforward_msgs::builtin_interfaces::Time;
 use groupforward_msgs::geometry_msgs::{Quaternion, Transform, TransformStamped, Vector3};

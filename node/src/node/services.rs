@@ -13,7 +13,7 @@ use groupforward_msgs::rmw_zenoh::{resolve_name, Qos};
 use groupforward_msgs::services::{GetInstance, ListInstances, LoadMap, Refer, SaveMap};
 use groupforward_msgs::vision_msgs::ObjectHypothesis;
 use groupforward_msgs::{builtin_interfaces::Time, cdr, RosMessage, RosService};
-use groupforward_sim::referring::ViewPose;
+use groupforward_relations::ViewPose;
 
 use super::error::Result;
 use super::queue::InputQueue;

@@ -8,7 +8,7 @@
 use std::path::Path;
 
 use glam::DVec2;
-use groupforward_sim::referring::color_name;
+use groupforward_relations::color_name;
 use serde_json::json;
 
 use super::scene::ReferScene;

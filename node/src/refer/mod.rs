@@ -19,7 +19,7 @@ pub mod scripted_chat;
 mod tests;
 pub mod vlm;
 
-use groupforward_sim::referring::ViewPose;
+use groupforward_relations::ViewPose;
 use serde::{Deserialize, Serialize};
 
 use concepts::Concept;

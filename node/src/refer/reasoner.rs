@@ -3,7 +3,7 @@
 //! Sr3D margin to the best anchors, the superlative's key, the colour's distance, else the
 //! semantic score) and as many as the expression's cardinality are chosen.
 
-use groupforward_sim::referring::{Geometry, ViewPose};
+use groupforward_relations::{Geometry, ViewPose};
 
 use super::parse::{Count, Query, Relation};
 use super::retrieve::{

@@ -2,11 +2,11 @@
 //! Three scores per instance, each in [0, 1] and all reported: semantic (the target concept),
 //! geometric (the relation to the best anchors, the superlative or the colour asked for, as soft
 //! margins around Sr3D's thresholds), visibility (ν in the newest keyframes). Relations are
-//! decided with the simulator's definitions of Sr3D's relations (`groupforward_sim::referring`),
-//! so the benchmark's generator and the reasoner mean the same thing by "on" or "left of".
+//! decided with Sr3D's relations as `groupforward_relations` defines them: the benchmark's
+//! generator reads the same crate, so both mean the same thing by "on" or "left of".
 
 use glam::DVec3;
-use groupforward_sim::referring::{
+use groupforward_relations::{
     above_margin, bearing, between_margin, front_margin, left_margin, on_margin, Geometry,
     ViewPose, COLOR_PALETTE, DIRECTION_MARGIN_DEG,
 };

@@ -4,7 +4,7 @@
 use std::collections::HashMap;
 
 use glam::{DMat3, DQuat, DVec3};
-use groupforward_sim::referring::ViewPose;
+use groupforward_relations::ViewPose;
 
 use super::*;
 use crate::recon::boxes::OrientedBox;

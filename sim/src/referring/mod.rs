@@ -12,9 +12,9 @@ mod relations;
 mod templates;
 
 pub use relations::{
-    above_margin, bearing, between_margin, color_name, front_margin, left_margin, on_margin,
-    plural, Expression, Geometry, Relation, ViewPose, BETWEEN_CLEARANCE_M, CLOSEST_GAP_M,
-    COLOR_PALETTE, DEPTH_GAP_M, DIRECTION_MARGIN_DEG, SIZE_RATIO, SUPPORT_CONTACT_M,
+    above_margin, bearing, between_margin, color_name, front_margin, geometry, left_margin,
+    on_margin, plural, Expression, Geometry, Relation, ViewPose, BETWEEN_CLEARANCE_M,
+    CLOSEST_GAP_M, COLOR_PALETTE, DEPTH_GAP_M, DIRECTION_MARGIN_DEG, SIZE_RATIO, SUPPORT_CONTACT_M,
     VERTICAL_SEPARATION_M,
 };
 
@@ -24,7 +24,7 @@ use templates::Builder;
 /// Every unambiguous expression of `scene`; view-dependent ones in each of `views`
 /// (`half_fov_deg`: half the horizontal field of view).
 pub fn generate(scene: &Scene, views: &[ViewPose], half_fov_deg: f64) -> Vec<Expression> {
-    let objects: Vec<Geometry> = scene.objects.iter().map(Geometry::new).collect();
+    let objects: Vec<Geometry> = scene.objects.iter().map(geometry).collect();
     let mut builder = Builder {
         objects: &objects,
         out: Vec::new(),

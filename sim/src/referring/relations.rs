@@ -1,89 +1,17 @@
-//! The geometry the generator decides relations on: objects as boxes, viewpoints, Sr3D's
-//! thresholds and the margin by which each relation holds; colour names and plurals.
+//! The benchmark's expressions and the geometry the generator decides relations on: what the
+//! relations mean lives in `groupforward-relations`, which the node's reasoner reads too.
 
-use glam::{DQuat, DVec3};
 use serde::{Deserialize, Serialize};
+
+pub use groupforward_relations::{
+    above_margin, bearing, between_margin, color_distance, color_name, front_margin, left_margin,
+    on_margin, Geometry, PairMargin, Relation, ViewPose, BETWEEN_CLEARANCE_M, CLOSEST_GAP_M,
+    COLOR_PALETTE, DEPTH_GAP_M, DIRECTION_MARGIN_DEG, SIZE_RATIO, SUPPORT_CONTACT_M,
+    VERTICAL_SEPARATION_M,
+};
 
 use crate::library;
 use crate::render::PlacedObject;
-
-/// Sr3D's thresholds.
-pub const CLOSEST_GAP_M: f64 = 0.2;
-pub const VERTICAL_SEPARATION_M: f64 = 0.06;
-pub const SUPPORT_CONTACT_M: f64 = 0.15;
-pub const BETWEEN_CLEARANCE_M: f64 = 0.3;
-pub const DIRECTION_MARGIN_DEG: f64 = 10.0;
-/// Superlatives of size need the biggest to be this many times the runner-up's volume.
-pub const SIZE_RATIO: f64 = 1.25;
-/// Front / behind need this much depth difference in the view (metres).
-pub const DEPTH_GAP_M: f64 = 0.3;
-
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Relation {
-    /// "the trash bin" (the only one), or "all the chairs" (cardinality > 1).
-    Class,
-    Closest,
-    Farthest,
-    Above,
-    Below,
-    On,
-    Supporting,
-    Left,
-    Right,
-    Front,
-    Behind,
-    Between,
-    Biggest,
-    Smallest,
-    Tallest,
-    Highest,
-    Lowest,
-    Leftmost,
-    Rightmost,
-    Color,
-    Function,
-}
-
-impl Relation {
-    pub fn view_dependent(self) -> bool {
-        matches!(
-            self,
-            Relation::Left
-                | Relation::Right
-                | Relation::Front
-                | Relation::Behind
-                | Relation::Leftmost
-                | Relation::Rightmost
-        )
-    }
-}
-
-/// The viewpoint a view-dependent expression is decided in: `world_from_camera` of the rig's
-/// first camera at a trajectory frame (REP-103 optical frame), as the Refer service's `view_pose`.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct ViewPose {
-    pub frame: usize,
-    pub position: [f64; 3],
-    /// x, y, z, w.
-    pub orientation: [f64; 4],
-}
-
-impl ViewPose {
-    pub fn new(frame: usize, rotation: DQuat, position: DVec3) -> Self {
-        Self {
-            frame,
-            position: position.to_array(),
-            orientation: rotation.to_array(),
-        }
-    }
-
-    /// A world point in this camera's frame.
-    fn in_camera(&self, p: DVec3) -> DVec3 {
-        let rotation = DQuat::from_array(self.orientation);
-        rotation.inverse() * (p - DVec3::from(self.position))
-    }
-}
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Expression {
@@ -102,141 +30,20 @@ pub struct Expression {
     pub view: Option<ViewPose>,
 }
 
-/// The geometry of one object as relations see it.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Geometry {
-    pub id: u16,
-    pub class: &'static str,
-    pub lo: DVec3,
-    pub hi: DVec3,
-    pub color: [f32; 3],
-}
-
-impl Geometry {
-    pub fn new(object: &PlacedObject) -> Self {
-        let (lo, hi) = object.bounds();
-        let class = library::classes()
-            .into_iter()
-            .find(|c| c.id == object.class_id)
-            .map_or("object", |c| c.name);
-        Self {
-            id: object.instance_id,
-            class,
-            lo,
-            hi,
-            color: object.color,
-        }
+/// The relation geometry of a placed object: its bounds, class name and colour.
+pub fn geometry(object: &PlacedObject) -> Geometry {
+    let (lo, hi) = object.bounds();
+    let class = library::classes()
+        .into_iter()
+        .find(|c| c.id == object.class_id)
+        .map_or("object", |c| c.name);
+    Geometry {
+        id: object.instance_id,
+        class,
+        lo,
+        hi,
+        color: object.color,
     }
-
-    pub fn center(&self) -> DVec3 {
-        (self.lo + self.hi) / 2.0
-    }
-
-    pub fn volume(&self) -> f64 {
-        let s = self.hi - self.lo;
-        s.x * s.y * s.z
-    }
-
-    pub fn height(&self) -> f64 {
-        self.hi.z - self.lo.z
-    }
-
-    /// Overlap of the two footprints (xy), metres; negative: the gap between them.
-    fn footprint_overlap(&self, other: &Geometry) -> f64 {
-        let x = self.hi.x.min(other.hi.x) - self.lo.x.max(other.lo.x);
-        let y = self.hi.y.min(other.hi.y) - self.lo.y.max(other.lo.y);
-        x.min(y)
-    }
-}
-
-/// Margin (metres) by which `t` stands on `a`: positive when `t`'s footprint centre lies on
-/// `a`'s footprint and `t`'s base is within `a`'s height range (or touching its top within
-/// 0.15 m), off the floor.
-pub fn on_margin(t: &Geometry, a: &Geometry) -> f64 {
-    let c = t.center();
-    let inside = (c.x - a.lo.x)
-        .min(a.hi.x - c.x)
-        .min(c.y - a.lo.y)
-        .min(a.hi.y - c.y);
-    let base = t.lo.z;
-    let vertical = (base - a.lo.z).min(a.hi.z + SUPPORT_CONTACT_M - base);
-    inside.min(vertical).min(base - 0.05)
-}
-
-/// Margin by which `t` is above `a`: footprints overlap, `t`'s base at or over `a`'s top (within
-/// the contact tolerance) and its centre at least 0.06 m higher.
-pub fn above_margin(t: &Geometry, a: &Geometry) -> f64 {
-    let overlap = t.footprint_overlap(a);
-    let base = t.lo.z - (a.hi.z - SUPPORT_CONTACT_M);
-    let separation = t.center().z - a.center().z - VERTICAL_SEPARATION_M;
-    overlap.min(base).min(separation)
-}
-
-/// Horizontal bearing (degrees, positive to the right) and depth of a point in a view.
-pub fn bearing(view: &ViewPose, p: DVec3) -> (f64, f64) {
-    let c = view.in_camera(p);
-    (c.x.atan2(c.z).to_degrees(), c.z)
-}
-
-/// Margin (degrees) by which `t` is left of `a` in `view`.
-pub fn left_margin(view: &ViewPose, t: &Geometry, a: &Geometry) -> f64 {
-    let (bt, _) = bearing(view, t.center());
-    let (ba, _) = bearing(view, a.center());
-    ba - bt - DIRECTION_MARGIN_DEG
-}
-
-/// Margin (metres) by which `t` is in front of `a` (nearer the viewer, roughly in line).
-pub fn front_margin(view: &ViewPose, t: &Geometry, a: &Geometry) -> f64 {
-    let (bt, zt) = bearing(view, t.center());
-    let (ba, za) = bearing(view, a.center());
-    let in_line = (25.0 - (bt - ba).abs()) / 25.0 * DEPTH_GAP_M;
-    (za - zt - DEPTH_GAP_M).min(in_line)
-}
-
-/// Margin (metres) by which `t` lies between `a` and `b` (in the floor plane): inside the
-/// corridor joining their centres, half a metre wide each side, away from its ends.
-pub fn between_margin(t: &Geometry, a: &Geometry, b: &Geometry) -> f64 {
-    let flat = |v: DVec3| DVec3::new(v.x, v.y, 0.0);
-    let (pa, pb, pt) = (flat(a.center()), flat(b.center()), flat(t.center()));
-    let ab = pb - pa;
-    let length = ab.length();
-    if length < 1e-6 {
-        return f64::NEG_INFINITY;
-    }
-    let s = (pt - pa).dot(ab) / (length * length);
-    let along = (s.min(1.0 - s) - 0.15) * length;
-    let across = 0.5 - (pt - (pa + s * ab)).length();
-    along.min(across)
-}
-
-/// Colour names and the RGB (0-1) they stand for: what colour words mean to the generator and the
-/// node's reasoner.
-pub const COLOR_PALETTE: &[(&str, [f32; 3])] = &[
-    ("red", [0.8, 0.15, 0.15]),
-    ("orange", [0.9, 0.5, 0.15]),
-    ("yellow", [0.9, 0.85, 0.3]),
-    ("green", [0.2, 0.6, 0.25]),
-    ("blue", [0.2, 0.3, 0.75]),
-    ("purple", [0.5, 0.25, 0.6]),
-    ("brown", [0.5, 0.32, 0.18]),
-    ("black", [0.08, 0.08, 0.1]),
-    ("white", [0.93, 0.93, 0.93]),
-    ("grey", [0.5, 0.5, 0.5]),
-    ("beige", [0.85, 0.78, 0.6]),
-];
-
-/// The nearest colour name of an RGB triple.
-pub fn color_name(color: [f32; 3]) -> &'static str {
-    let distance = |c: &[f32; 3]| {
-        c.iter()
-            .zip(color)
-            .map(|(a, b)| (a - b) * (a - b))
-            .sum::<f32>()
-    };
-    COLOR_PALETTE
-        .iter()
-        .min_by(|a, b| distance(&a.1).total_cmp(&distance(&b.1)))
-        .map_or("grey", |p| p.0)
 }
 
 pub fn plural(class: &str) -> String {
@@ -246,14 +53,3 @@ pub fn plural(class: &str) -> String {
         other => format!("{other}s"),
     }
 }
-
-pub(super) fn color_distance(a: [f32; 3], b: [f32; 3]) -> f32 {
-    a.iter()
-        .zip(b)
-        .map(|(x, y)| (x - y) * (x - y))
-        .sum::<f32>()
-        .sqrt()
-}
-
-/// A margin of `t` with respect to an anchor.
-pub(super) type PairMargin = dyn Fn(&Geometry, &Geometry) -> f64;

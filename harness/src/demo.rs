@@ -14,36 +14,38 @@ use groupforward_msgs::gf_msgs::{
     InstanceArray, InstanceMasks, ListInstancesRequest, ListInstancesResponse, MapPathRequest,
     MapResultResponse, NodeStatus, SceneGraph,
 };
-use groupforward_msgs::rmw_zenoh::{self, Attachment, Qos};
+use groupforward_msgs::rmw_zenoh::{self, Qos};
 use groupforward_msgs::sensor_msgs::Image;
 use groupforward_msgs::sensor_msgs::PointCloud2;
 use groupforward_msgs::services::{ListInstances, Refer, SaveMap};
 use groupforward_msgs::tf2_msgs::TFMessage;
 use groupforward_msgs::vision_msgs::Detection3DArray;
 use groupforward_msgs::visualization_msgs::MarkerArray;
-use groupforward_msgs::{cdr, RosMessage, RosService};
+use groupforward_msgs::{cdr, RosMessage};
 use groupforward_sim::record::{record_to_memory, RecordOptions, RecordSummary};
 use groupforward_sim::referring::Expression;
 use groupforward_sim::scene::SceneFile;
 use groupforward_sim::simulation::Simulation;
-use zenoh::Wait;
 
-use crate::config::Config;
-use crate::transport::ZenohSection;
-use crate::transport::{open_session, Endpoint, Transport, TransportError, ZenohTransport};
+use groupforward::client::{call_service, query_json, wait_for, ClientError};
+use groupforward::config::Config;
+use groupforward::transport::ZenohSection;
+use groupforward::transport::{open_session, Endpoint, Transport, TransportError, ZenohTransport};
 
 #[derive(Debug, thiserror::Error)]
 pub enum DemoError {
     #[error(transparent)]
     Transport(#[from] TransportError),
     #[error(transparent)]
-    Node(#[from] crate::node::NodeError),
+    Node(#[from] groupforward::node::NodeError),
     #[error("the node did not {0} within {1:?}")]
     Timeout(&'static str, Duration),
     #[error("{0}")]
     Protocol(String),
     #[error("simulator: {0}")]
     Sim(String),
+    #[error(transparent)]
+    Client(#[from] ClientError),
 }
 
 pub type Result<T> = std::result::Result<T, DemoError>;
@@ -83,11 +85,11 @@ pub type VocabularyMatch = (String, String, f32);
 /// Resolve `queries` to the closest class of the simulator's library (by name, description or
 /// affordance) with the text encoder.
 pub fn match_vocabulary(queries: &[&str]) -> std::result::Result<Vec<VocabularyMatch>, String> {
-    use crate::model::text::{cosine, TextEncoder};
-    crate::model::init_runtime(None).map_err(|e| e.to_string())?;
+    use groupforward::model::text::{cosine, TextEncoder};
+    groupforward::model::init_runtime(None).map_err(|e| e.to_string())?;
     let manifest =
         std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/all-MiniLM-L6-v2.toml");
-    let mut encoder = TextEncoder::load(&manifest, &crate::model::SessionOptions::default())
+    let mut encoder = TextEncoder::load(&manifest, &groupforward::model::SessionOptions::default())
         .map_err(|e| e.to_string())?;
     // The vocabulary: the simulator library's class names.
     // Each class is known by its name, its description and its affordances ("wash hands"); a
@@ -183,7 +185,7 @@ type Inbox = Arc<std::sync::Mutex<std::collections::HashMap<String, Vec<Vec<u8>>
 /// Subscribe to every output topic of `endpoints` on `transport`, collecting payloads.
 fn subscribe_outputs(
     transport: &dyn Transport,
-    endpoints: &crate::node::outputs::OutputEndpoints,
+    endpoints: &groupforward::node::outputs::OutputEndpoints,
 ) -> Result<Inbox> {
     let inbox: Inbox = Arc::default();
     for endpoint in endpoints.all() {
@@ -203,7 +205,7 @@ fn subscribe_outputs(
 /// Decode what `inbox` holds (the last message of each topic; every mask message).
 fn decode_outputs(
     inbox: &Inbox,
-    endpoints: &crate::node::outputs::OutputEndpoints,
+    endpoints: &groupforward::node::outputs::OutputEndpoints,
 ) -> PublishedOutputs {
     let Ok(inbox) = inbox.lock() else {
         return PublishedOutputs::default();
@@ -238,96 +240,6 @@ fn decode_outputs(
     }
 }
 
-/// The payload of the first reply to a get, or the error the replier sent.
-fn first_reply(
-    get: zenoh::session::SessionGetBuilder<'_, '_, zenoh::handlers::DefaultHandler>,
-    what: &'static str,
-    timeout: Duration,
-) -> Result<Vec<u8>> {
-    let replies = get
-        .timeout(timeout)
-        .wait()
-        .map_err(|e| DemoError::Protocol(e.to_string()))?;
-    let reply = replies
-        .recv_timeout(timeout)
-        .map_err(|e| DemoError::Protocol(e.to_string()))?
-        .ok_or(DemoError::Timeout(what, timeout))?;
-    match reply.result() {
-        Ok(sample) => Ok(sample.payload().to_bytes().into_owned()),
-        Err(e) => Err(DemoError::Protocol(format!(
-            "{what}: error reply {}",
-            String::from_utf8_lossy(&e.payload().to_bytes())
-        ))),
-    }
-}
-
-/// One JSON API request through zenoh.
-pub fn query_json(
-    session: &zenoh::Session,
-    key: &str,
-    timeout: Duration,
-) -> Result<serde_json::Value> {
-    let payload = first_reply(session.get(key), "answer the JSON API", timeout)?;
-    serde_json::from_slice(&payload)
-        .map_err(|e| DemoError::Protocol(format!("JSON API answered non-JSON: {e}")))
-}
-
-/// Call an rmw_zenoh service as a ROS 2 client would: a get on the service key with a CDR request
-/// and an attachment.
-pub fn call_service<S: RosService>(
-    session: &zenoh::Session,
-    domain_id: u32,
-    service_name: &str,
-    request: &S::Request,
-    timeout: Duration,
-) -> Result<S::Response> {
-    let payload = cdr::encode(request).map_err(|e| DemoError::Protocol(e.to_string()))?;
-    let response = call_service_raw::<S>(session, domain_id, service_name, payload, timeout)?;
-    cdr::decode(&response).map_err(|e| DemoError::Protocol(e.to_string()))
-}
-
-/// [`call_service`] with the request's CDR bytes as they are (well formed or not), returning the
-/// response's bytes.
-pub fn call_service_raw<S: RosService>(
-    session: &zenoh::Session,
-    domain_id: u32,
-    service_name: &str,
-    payload: Vec<u8>,
-    timeout: Duration,
-) -> Result<Vec<u8>> {
-    let hash = groupforward_msgs::idl::type_hash(S::TYPE_NAME).map_err(TransportError::from)?;
-    let key = rmw_zenoh::data_key(domain_id, service_name, S::TYPE_NAME, &hash)
-        .map_err(TransportError::from)?;
-    let attachment = Attachment {
-        sequence_number: 1,
-        source_timestamp: 0,
-        source_gid: rmw_zenoh::gid_for_token(&key),
-    };
-    let get = session
-        .get(key)
-        .payload(payload)
-        .attachment(attachment.encode());
-    first_reply(get, "answer the service", timeout)
-}
-
-/// Poll `check` every 20 ms until it returns `Some`, or fail after `timeout`.
-pub fn wait_for<T>(
-    what: &'static str,
-    timeout: Duration,
-    mut check: impl FnMut() -> Option<T>,
-) -> Result<T> {
-    let deadline = Instant::now() + timeout;
-    loop {
-        if let Some(value) = check() {
-            return Ok(value);
-        }
-        if Instant::now() >= deadline {
-            return Err(DemoError::Timeout(what, timeout));
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    }
-}
-
 /// An embedded zenoh peer (no router to connect to) for `config`'s node: the session clients of
 /// this process share, and the node's transport on it.
 pub fn embedded_node(config: &mut Config) -> Result<(zenoh::Session, ZenohTransport)> {
@@ -350,7 +262,7 @@ pub fn run_demo(options: &DemoOptions) -> Result<DemoReport> {
     let mut config = Config::default();
     config.status.period_secs = 0.2;
     // The shipped models, wherever the demo is started from.
-    config.models = crate::model::ModelsSection::shipped_in(
+    config.models = groupforward::model::ModelsSection::shipped_in(
         &std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../models"),
     );
     // Every answer's evidence bundle (PNG + JSON) lands here for a person to look at.
@@ -369,12 +281,13 @@ pub fn run_demo(options: &DemoOptions) -> Result<DemoReport> {
     let domain = config.zenoh.domain_id;
     // A subscriber of every output topic, as RViz or a navigation stack would be.
     let listener = ZenohTransport::new(session.clone(), domain, "/", "demo_listener")?;
-    let output_endpoints = crate::node::outputs::OutputEndpoints::declare(&config)?;
+    let output_endpoints = groupforward::node::outputs::OutputEndpoints::declare(&config)?;
     let inbox = subscribe_outputs(&listener, &output_endpoints)?;
     let shutdown = Arc::new(AtomicBool::new(false));
     let recorder = match &options.record_outputs {
         Some(dir) => Some(
-            crate::record::Recorder::create(dir).map_err(|e| DemoError::Protocol(e.to_string()))?,
+            groupforward::record::Recorder::create(dir)
+                .map_err(|e| DemoError::Protocol(e.to_string()))?,
         ),
         None => None,
     };
@@ -382,13 +295,13 @@ pub fn run_demo(options: &DemoOptions) -> Result<DemoReport> {
         let (config, shutdown, recorder) = (config.clone(), shutdown.clone(), recorder.clone());
         std::thread::spawn(move || match recorder {
             Some(recorder) => {
-                let recording = crate::record::RecordingTransport {
+                let recording = groupforward::record::RecordingTransport {
                     inner: &node_transport,
                     recorder,
                 };
-                crate::node::run(&config, &recording, &shutdown)
+                groupforward::node::run(&config, &recording, &shutdown)
             }
-            None => crate::node::run(&config, &node_transport, &shutdown),
+            None => groupforward::node::run(&config, &node_transport, &shutdown),
         })
     };
     let status_key = format!("{}/status", config.api_prefix());
@@ -402,11 +315,11 @@ pub fn run_demo(options: &DemoOptions) -> Result<DemoReport> {
     let (bag, recorded) = record_to_memory(&sim, &RecordOptions::default())
         .map_err(|e| DemoError::Sim(e.to_string()))?;
     let rig = ZenohTransport::new(session.clone(), domain, "/", "demo_replay")?;
-    let replayed = crate::replay::replay_buffers(
+    let replayed = groupforward::replay::replay_buffers(
         &[format!("{}.mcap", options.scene.name)],
         &[bag],
         &rig,
-        crate::replay::ReplayOptions {
+        groupforward::replay::ReplayOptions {
             rate: options.rate,
             loops: 1,
             progress: false,
@@ -563,10 +476,15 @@ pub fn run_demo(options: &DemoOptions) -> Result<DemoReport> {
     .map_err(|e| e.to_string())
     .and_then(|r: MapResultResponse| if r.success { Ok(()) } else { Err(r.message) })
     .and_then(|()| {
-        crate::graph::persist::load(&map_file, crate::graph::FusionParams::default())
+        groupforward::graph::persist::load(&map_file, groupforward::graph::FusionParams::default())
             .map_err(|e| e.to_string())
     })
-    .map(|map| (map_file.clone(), crate::graph::persist::content_hash(&map)));
+    .map(|map| {
+        (
+            map_file.clone(),
+            groupforward::graph::persist::content_hash(&map),
+        )
+    });
     // The status after the queries: where the time went, the queries included.
     let asked = answers.len() as u64;
     let read_status = || {

@@ -5,7 +5,7 @@
 use std::time::Duration;
 
 use anyhow::{Context, Result};
-use groupforward::demo::call_service;
+use groupforward::client::call_service;
 use groupforward::transport::open_session;
 use groupforward_msgs::gf_msgs::{ReferRequest, ReferResponse};
 use groupforward_msgs::rmw_zenoh::resolve_name;

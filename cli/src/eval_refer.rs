@@ -7,10 +7,12 @@ use std::path::Path;
 use std::sync::{Arc, Mutex};
 
 use anyhow::{Context, Result};
-use groupforward::eval::baseline::FeatureVoxels;
-use groupforward::eval::refer::{ask_scene, held_out_views, ReferRecord, Referrer, SceneTruth};
-use groupforward::eval::run::{record_scene, replay_scene_with};
 use groupforward::window::WindowModels;
+use groupforward_harness::eval::baseline::FeatureVoxels;
+use groupforward_harness::eval::refer::{
+    ask_scene, held_out_views, ReferRecord, Referrer, SceneTruth,
+};
+use groupforward_harness::eval::run::{record_scene, replay_scene_with};
 use groupforward_sim::referring::{scene_expressions, Expression, Relation, ViewPose};
 use groupforward_sim::scene::SceneFile;
 use groupforward_sim::simulation::Simulation;

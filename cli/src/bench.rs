@@ -377,7 +377,7 @@ pub fn run(command: BenchCommand) -> Result<()> {
                 (messages, requests, flood_secs)
             };
             crate::bench_soak::soak(
-                &groupforward::soak::SoakOptions {
+                &groupforward_harness::soak::SoakOptions {
                     scene: groupforward_sim::scene::SceneFile::builtin("two_chairs").ok_or_else(
                         || anyhow::anyhow!("the built-in two_chairs scene is missing"),
                     )?,

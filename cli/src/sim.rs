@@ -81,6 +81,13 @@ pub enum SimCommand {
         #[arg(long)]
         out: PathBuf,
     },
+    /// Write the default vocabulary file (the simulator's object classes) that the node embeds:
+    /// `--out node/data/default_vocabulary.yaml` after the class library changed; without
+    /// `--out`, print it.
+    Vocabulary {
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
 }
 
 /// A scene file path, or `<split>:<index>` for a procedural scene.
@@ -111,6 +118,17 @@ pub fn progress_bar(len: u64, what: &str) -> indicatif::ProgressBar {
 pub fn run(command: SimCommand) -> Result<()> {
     match command {
         SimCommand::Render { scene, frame, out } => render(&load_scene(&scene)?, frame, &out),
+        SimCommand::Vocabulary { out } => {
+            let text = groupforward_harness::vocabulary::default_vocabulary_yaml();
+            match out {
+                Some(path) => std::fs::write(&path, text)
+                    .with_context(|| format!("cannot write {}", path.display())),
+                None => {
+                    print!("{text}");
+                    Ok(())
+                }
+            }
+        }
         SimCommand::Record {
             scene,
             out,

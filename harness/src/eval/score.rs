@@ -9,8 +9,8 @@ use std::collections::HashMap;
 use pathfinding::prelude::{kuhn_munkres, Matrix};
 use serde::{Deserialize, Serialize};
 
-use crate::recon::boxes::OrientedBox;
-use crate::recon::metrics::ObjectCoverage;
+use groupforward::recon::boxes::OrientedBox;
+use groupforward::recon::metrics::ObjectCoverage;
 
 /// IoU thresholds of the recall figures (ScanRefer's Acc@0.25 / Acc@0.5).
 pub const IOU_LOOSE: f64 = 0.25;
@@ -85,7 +85,7 @@ pub struct WindowRecord {
     /// segmentation, before boxes: a partial view makes a partial box, not a bad grouping).
     pub coverage: Vec<ObjectCoverage>,
     /// Per object, its model pixels in no instance by the stage that dropped them (in the order
-    /// of [`crate::window::Unassigned::ALL`]).
+    /// of [`groupforward::window::Unassigned::ALL`]).
     pub unassigned: Vec<(u16, [u64; UNASSIGNED_REASONS])>,
     pub instances: Vec<(OrientedBox, String)>,
     pub map: Vec<ListedInstance>,
@@ -144,14 +144,14 @@ pub struct ObjectTrace {
     pub to_structure: f64,
     pub unassigned: f64,
     pub impurity: f64,
-    /// `unassigned` by the stage that dropped the pixels ([`crate::window::Unassigned::ALL`]'s
+    /// `unassigned` by the stage that dropped the pixels ([`groupforward::window::Unassigned::ALL`]'s
     /// order: not lifted, HDBSCAN noise, depth edge, speck, support, another object's class).
     pub unassigned_by: [f64; UNASSIGNED_REASONS],
     pub map_best_iou: f64,
 }
 
-/// The stages that can leave a pixel in no window instance ([`crate::window::Unassigned`]).
-pub const UNASSIGNED_REASONS: usize = crate::window::Unassigned::ALL.len();
+/// The stages that can leave a pixel in no window instance ([`groupforward::window::Unassigned`]).
+pub const UNASSIGNED_REASONS: usize = groupforward::window::Unassigned::ALL.len();
 
 /// A window instance that covers an object's pixels at this IoU or more grouped it as itself.
 pub const PIXEL_FOUND_IOU: f64 = 0.5;

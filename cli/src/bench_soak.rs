@@ -1,9 +1,9 @@
-//! `bench soak`: runs [`groupforward::soak`] and writes `summary.json` and a readable summary.
+//! `bench soak`: runs [`groupforward_harness::soak`] and writes `summary.json` and a readable summary.
 
 use std::path::Path;
 
 use anyhow::{Context, Result};
-use groupforward::soak::{run_soak, SoakOptions, SoakReport};
+use groupforward_harness::soak::{run_soak, SoakOptions, SoakReport};
 
 pub fn soak(options: &SoakOptions, out: &Path) -> Result<()> {
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;

@@ -10,17 +10,17 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use groupforward::config::Config;
-use groupforward::eval::interval::{intervals, paired_differences, Interval};
-use groupforward::eval::run::{run_scene, SceneRun};
-use groupforward::eval::score::{
-    attach_traces, score_instances, score_map, score_windows, trace_objects, Counts, InstanceRow,
-    ObjectRow, Summary,
-};
 use groupforward::ingest::DepthValidity;
 use groupforward::model::ModelsSection;
 use groupforward::recon::depth_noise;
 use groupforward::timing::{describe, summarise, Stage, StageSummary, StageTimes};
 use groupforward::window::WindowModels;
+use groupforward_harness::eval::interval::{intervals, paired_differences, Interval};
+use groupforward_harness::eval::run::{run_scene, SceneRun};
+use groupforward_harness::eval::score::{
+    attach_traces, score_instances, score_map, score_windows, trace_objects, Counts, InstanceRow,
+    ObjectRow, Summary,
+};
 use groupforward_sim::effects::Preset;
 use groupforward_sim::procedural::{generate, Split};
 use groupforward_sim::scene::SceneFile;

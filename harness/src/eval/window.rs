@@ -10,17 +10,17 @@ use groupforward_sim::library::classes;
 use groupforward_sim::simulation::{SimView, Simulation};
 
 use super::run::EvalError;
-use crate::frame::{DepthImage, RgbImage, SyncedFrame};
-use crate::group::semantics::{Vocabulary, OTHER_PHRASE};
-use crate::model::reconstruction::{resize_rgb_planar, resized_camera};
-use crate::recon::camera::Camera;
-use crate::recon::gaussians::Gaussians;
-use crate::recon::metrics::{
+use groupforward::frame::{DepthImage, RgbImage, SyncedFrame};
+use groupforward::group::semantics::{Vocabulary, OTHER_PHRASE};
+use groupforward::model::reconstruction::{resize_rgb_planar, resized_camera};
+use groupforward::recon::camera::Camera;
+use groupforward::recon::gaussians::Gaussians;
+use groupforward::recon::metrics::{
     adjusted_rand_index, depth_scores, object_coverage, psnr, sample_nearest, ssim, ObjectCoverage,
 };
-use crate::recon::raster::{render, render_labels, RasterSettings};
-use crate::recon::Rigid;
-use crate::window::WindowModels;
+use groupforward::recon::raster::{render, render_labels, RasterSettings};
+use groupforward::recon::Rigid;
+use groupforward::window::WindowModels;
 
 /// One window's scores (NaN where a score could not be computed, e.g. no semantic model).
 #[derive(Debug, Clone, PartialEq)]

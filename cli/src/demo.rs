@@ -1,9 +1,9 @@
-//! `groupforward demo`: the in-process demo ([`groupforward::demo`]) on a scene, and its summary.
+//! `groupforward demo`: the in-process demo ([`groupforward_harness::demo`]) on a scene, and its summary.
 
 use anyhow::{Context, Result};
-use groupforward::demo::{run_demo, DemoOptions, DemoReport};
 use groupforward::node::WINDOW_BUSY;
 use groupforward::timing::{describe, Stage, StageSummary};
+use groupforward_harness::demo::{run_demo, DemoOptions, DemoReport};
 use groupforward_msgs::gf_msgs::StageTiming;
 use groupforward_sim::effects::Preset;
 
@@ -236,7 +236,7 @@ fn print_report(report: &DemoReport) {
 }
 
 /// What a subscriber of the node's output topics received: one line per topic.
-fn print_published(p: &groupforward::demo::PublishedOutputs, recorded: Option<u64>) {
+fn print_published(p: &groupforward_harness::demo::PublishedOutputs, recorded: Option<u64>) {
     println!(
         "  published topics, as a subscriber (RViz, a navigation stack) received them (map frame; messages, bytes; the last message):",
     );

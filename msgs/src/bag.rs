@@ -5,7 +5,7 @@
 use std::collections::BTreeMap;
 use std::io::{Seek, Write};
 
-use groupforward_msgs::{cdr, RosMessage};
+use crate::{cdr, RosMessage};
 
 #[derive(Debug, thiserror::Error)]
 pub enum BagError {
@@ -18,7 +18,7 @@ pub enum BagError {
     #[error("bag file: {0}")]
     Io(std::io::Error),
     #[error("type hash of {0}: {1}")]
-    Hash(String, groupforward_msgs::idl::IdlError),
+    Hash(String, crate::idl::IdlError),
 }
 
 pub type Result<T> = std::result::Result<T, BagError>;
@@ -129,12 +129,12 @@ impl<W: Write + Seek> BagWriter<W> {
             record.count += 1;
             return Ok(record.channel);
         }
-        let definition = groupforward_msgs::idl::message_definition(type_name)
+        let definition = crate::idl::message_definition(type_name)
             .map_err(|_| BagError::UnknownType(type_name.to_owned()))?;
         let schema = self
             .writer
             .add_schema(type_name, "ros2msg", definition.as_bytes())?;
-        let hash = groupforward_msgs::idl::type_hash(type_name)
+        let hash = crate::idl::type_hash(type_name)
             .map_err(|e| BagError::Hash(type_name.to_owned(), e))?;
         let qos = self.qos.get(topic).copied().unwrap_or_default();
         let metadata = BTreeMap::from([
@@ -268,7 +268,7 @@ impl BagWriter<std::io::BufWriter<std::fs::File>> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use groupforward_msgs::std_msgs::Header;
+    use crate::std_msgs::Header;
 
     #[test]
     fn written_bag_reads_back_with_schema_hash_and_payload() {

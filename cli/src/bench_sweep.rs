@@ -6,9 +6,9 @@
 use std::path::Path;
 
 use anyhow::{Context, Result};
-use groupforward::eval::run::{record_scene, replay_scene, RecordedScene};
 use groupforward::timing::{summarise, Stage, StageSummary};
 use groupforward::window::WindowModels;
+use groupforward_harness::eval::run::{record_scene, replay_scene, RecordedScene};
 use groupforward_sim::scene::SceneFile;
 
 use crate::eval::{eval_config, shipped_models, Scored};

@@ -35,7 +35,7 @@ pub fn outputs_bench(
     let mut models = groupforward::window::WindowModels::load(&config.models, &config.semantics)?;
     let scene = groupforward_sim::scene::SceneFile::builtin("two_chairs")
         .ok_or_else(|| anyhow::anyhow!("the built-in two_chairs scene is missing"))?;
-    let run = groupforward::eval::run::run_scene(&scene, &config, &mut models)?;
+    let run = groupforward_harness::eval::run::run_scene(&scene, &config, &mut models)?;
     let stages = groupforward::timing::summarise(&run.window_times);
     let window_ms = stages
         .iter()

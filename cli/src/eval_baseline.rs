@@ -7,12 +7,12 @@ use std::path::Path;
 use std::sync::{Arc, Mutex};
 
 use anyhow::Result;
-use groupforward::eval::baseline::{concept_weights, NamedVoxels};
-use groupforward::eval::refer::ReferRecord;
-use groupforward::eval::score::TruthObject;
 use groupforward::group::semantics::Vocabulary;
 use groupforward::model::text::TextEncoder;
 use groupforward::refer::parse::parse;
+use groupforward_harness::eval::baseline::{concept_weights, NamedVoxels};
+use groupforward_harness::eval::refer::ReferRecord;
+use groupforward_harness::eval::score::TruthObject;
 
 /// One single-target expression, answered by the node and by the baseline.
 #[derive(Debug, Clone, serde::Serialize)]

@@ -14,19 +14,19 @@ use groupforward_sim::referring::Expression;
 use serde::Serialize;
 
 use super::score::TruthObject;
-use crate::frame::Keyframe;
-use crate::graph::SceneMap;
-use crate::group::semantics::Vocabulary;
-use crate::model::reconstruction::resized_camera;
-use crate::model::text::TextEncoder;
-use crate::node::services::{handle_refer, Shared};
-use crate::recon::boxes::OrientedBox;
-use crate::recon::camera::Camera;
-use crate::recon::gaussians::Gaussians;
-use crate::recon::raster::{render, RasterSettings};
-use crate::recon::Rigid;
-use crate::refer::response::{label_image, pose_box};
-use crate::refer::ReferSection;
+use groupforward::frame::Keyframe;
+use groupforward::graph::SceneMap;
+use groupforward::group::semantics::Vocabulary;
+use groupforward::model::reconstruction::resized_camera;
+use groupforward::model::text::TextEncoder;
+use groupforward::node::services::{handle_refer, Shared};
+use groupforward::recon::boxes::OrientedBox;
+use groupforward::recon::camera::Camera;
+use groupforward::recon::gaussians::Gaussians;
+use groupforward::recon::raster::{render, RasterSettings};
+use groupforward::recon::Rigid;
+use groupforward::refer::response::{label_image, pose_box};
+use groupforward::refer::ReferSection;
 use groupforward_sim::simulation::Simulation;
 
 /// An answer box farther than this from every object (and overlapping none) names no object.

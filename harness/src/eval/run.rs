@@ -7,7 +7,6 @@
 
 use std::collections::{BTreeMap, HashMap};
 
-use glam::DVec3;
 use groupforward_sim::record::{record_to_memory, RecordOptions};
 use groupforward_sim::render::{PlacedObject, Scene};
 use groupforward_sim::scene::SceneFile;
@@ -15,17 +14,17 @@ use groupforward_sim::simulation::Simulation;
 use rayon::prelude::*;
 
 use super::score::{ListedInstance, TruthObject, WindowRecord, UNASSIGNED_REASONS};
-use crate::config::Config;
-use crate::frame::SyncedFrame;
-use crate::graph::walls::object_list;
-use crate::graph::{GraphError, SceneMap};
-use crate::ingest::{DepthValidity, Ingest};
-use crate::node::Node;
-use crate::recon::boxes::{OrientedBox, DEFAULT_TRIM};
-use crate::recon::depth_noise;
-use crate::recon::metrics::{object_coverage, sample_nearest, ObjectCoverage};
-use crate::timing::{Stage, StageTimes};
-use crate::window::{Unassigned, WindowError, WindowModels, WindowOutput};
+use groupforward::config::Config;
+use groupforward::frame::SyncedFrame;
+use groupforward::graph::walls::object_list;
+use groupforward::graph::{GraphError, SceneMap};
+use groupforward::ingest::{DepthValidity, Ingest};
+use groupforward::node::Node;
+use groupforward::recon::boxes::{OrientedBox, DEFAULT_TRIM};
+use groupforward::recon::depth_noise;
+use groupforward::recon::metrics::{object_coverage, sample_nearest, ObjectCoverage};
+use groupforward::timing::{Stage, StageTimes};
+use groupforward::window::{Unassigned, WindowError, WindowModels, WindowOutput};
 
 #[derive(Debug, thiserror::Error)]
 pub enum EvalError {
@@ -38,7 +37,7 @@ pub enum EvalError {
     #[error(transparent)]
     Graph(#[from] GraphError),
     #[error(transparent)]
-    Model(#[from] crate::model::ModelError),
+    Model(#[from] groupforward::model::ModelError),
 }
 
 /// Everything one scene's run gives the scorer.
@@ -68,28 +67,15 @@ pub struct SceneRun {
 /// The ground-truth box of a placed object: the union of its parts in its own frame, scaled,
 /// turned by its yaw.
 pub fn truth_box(object: &PlacedObject) -> OrientedBox {
-    let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
-    for part in &object.parts {
-        let (centre, half) = part.extent();
-        lo = lo.min(centre - half);
-        hi = hi.max(centre + half);
+    match object.oriented_extent() {
+        Some((centre, size)) => OrientedBox {
+            centre,
+            size,
+            yaw: object.yaw,
+        }
+        .canonical(),
+        None => OrientedBox::from_bounds(object.position, object.position),
     }
-    if !lo.is_finite() {
-        return OrientedBox::from_bounds(object.position, object.position);
-    }
-    let local_centre = (lo + hi) / 2.0 * object.scale;
-    let (c, s) = (object.yaw.cos(), object.yaw.sin());
-    OrientedBox {
-        centre: object.position
-            + DVec3::new(
-                c * local_centre.x - s * local_centre.y,
-                s * local_centre.x + c * local_centre.y,
-                local_centre.z,
-            ),
-        size: (hi - lo) * object.scale,
-        yaw: object.yaw,
-    }
-    .canonical()
 }
 
 /// The scene's objects as the scorer sees them: class name, ground-truth box, and the pixels
@@ -222,9 +208,10 @@ pub fn replay_scene_with(
 ) -> Result<SceneRun, EvalError> {
     let frame_pixels = &recorded.frame_pixels;
 
-    let routes: HashMap<String, crate::ingest::Route> = Ingest::routes(&config.cameras, &config.tf)
-        .into_iter()
-        .collect();
+    let routes: HashMap<String, groupforward::ingest::Route> =
+        Ingest::routes(&config.cameras, &config.tf)
+            .into_iter()
+            .collect();
     let mut node = Node::new(config);
     let mut map = SceneMap::default();
     let mut windows = Vec::new();

@@ -6,12 +6,12 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
-use groupforward::eval::window::{
-    phrase_index, score_scene, CoveredObject, WindowEval, WindowScore, COVERAGE_MIN_PIXELS,
-};
 use groupforward::group::semantics::OTHER_PHRASE;
 use groupforward::recon::metrics::semantic_scores;
 use groupforward::window::WindowModels;
+use groupforward_harness::eval::window::{
+    phrase_index, score_scene, CoveredObject, WindowEval, WindowScore, COVERAGE_MIN_PIXELS,
+};
 use groupforward_sim::scene::SceneFile;
 use groupforward_sim::simulation::Simulation;
 
@@ -135,7 +135,7 @@ pub fn eval_window(
         })
         .collect();
     // mIoU over every scored pixel of the run (per-window mIoU over a handful of classes is noise).
-    let miou = |labels: &groupforward::eval::window::PooledLabels| -> Option<f64> {
+    let miou = |labels: &groupforward_harness::eval::window::PooledLabels| -> Option<f64> {
         let vocabulary = models.vocabulary.as_ref()?;
         let other = phrase_index(vocabulary, OTHER_PHRASE);
         semantic_scores(

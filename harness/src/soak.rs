@@ -30,14 +30,15 @@ use groupforward_sim::simulation::Simulation;
 use rand::{Rng, SeedableRng};
 use serde::Serialize;
 
-use crate::config::Config;
-use crate::demo::{call_service, call_service_raw, embedded_node, query_json, wait_for, DemoError};
-use crate::ingest::test_messages::{hostile_message, HostileTarget};
-use crate::ingest::CameraConfig;
-use crate::refer::scripted_chat::{
+use crate::demo::{embedded_node, DemoError};
+use groupforward::client::{call_service, call_service_raw, query_json, wait_for};
+use groupforward::config::Config;
+use groupforward::ingest::test_messages::{hostile_message, HostileTarget};
+use groupforward::ingest::CameraConfig;
+use groupforward::refer::scripted_chat::{
     vlm_faults, ScriptedChatServer, FAULT_TIMEOUT_SECS, REFUSED_REASON,
 };
-use crate::transport::{Endpoint, Publisher, Transport, ZenohTransport};
+use groupforward::transport::{Endpoint, Publisher, Transport, ZenohTransport};
 use zenoh::Wait;
 
 type Result<T> = std::result::Result<T, DemoError>;
@@ -256,8 +257,9 @@ fn vlm_faults_phase(
 ) {
     // A singular expression the built-in reasoner answers with one instance among two candidates
     // or more (the wrong-count fault answers two of them).
-    let singular =
-        |t: &str| crate::refer::parse(t).is_ok_and(|q| q.count == crate::refer::Count::One);
+    let singular = |t: &str| {
+        groupforward::refer::parse(t).is_ok_and(|q| q.count == groupforward::refer::Count::One)
+    };
     let builtin = texts.iter().filter(|t| singular(t)).find_map(|t| {
         ask(t, "builtin")
             .ok()
@@ -308,7 +310,7 @@ pub fn run_soak(options: &SoakOptions, progress: &dyn Fn(&str)) -> Result<SoakRe
     let scene = two_camera_scene(&options.scene);
     let mut config = Config::default();
     config.status.period_secs = 0.2;
-    config.models = crate::model::ModelsSection::shipped_in(
+    config.models = groupforward::model::ModelsSection::shipped_in(
         &std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../models"),
     );
     config.cameras = camera_sections(&scene);
@@ -326,7 +328,7 @@ pub fn run_soak(options: &SoakOptions, progress: &dyn Fn(&str)) -> Result<SoakRe
     let shutdown = Arc::new(AtomicBool::new(false));
     let node_thread = {
         let (config, shutdown) = (config.clone(), shutdown.clone());
-        std::thread::spawn(move || crate::node::run(&config, &node_transport, &shutdown))
+        std::thread::spawn(move || groupforward::node::run(&config, &node_transport, &shutdown))
     };
     let status_key = format!("{}/status", config.api_prefix());
     let timeout = Duration::from_secs(20);
@@ -338,11 +340,11 @@ pub fn run_soak(options: &SoakOptions, progress: &dyn Fn(&str)) -> Result<SoakRe
     let (bag, recorded) = record_to_memory(&sim, &RecordOptions::default())
         .map_err(|e| DemoError::Sim(e.to_string()))?;
     let rig = ZenohTransport::new(session.clone(), domain, "/", "soak_rig")?;
-    crate::replay::replay_buffers(
+    groupforward::replay::replay_buffers(
         &["soak.mcap".into()],
         std::slice::from_ref(&bag),
         &rig,
-        crate::replay::ReplayOptions {
+        groupforward::replay::ReplayOptions {
             rate: 1.0,
             loops: 1,
             progress: false,
@@ -361,7 +363,7 @@ pub fn run_soak(options: &SoakOptions, progress: &dyn Fn(&str)) -> Result<SoakRe
     std::thread::sleep(Duration::from_secs(2));
     let refer_service =
         rmw_zenoh::resolve_name(&config.node.namespace, &config.node.name, "~/refer")
-            .map_err(crate::transport::TransportError::from)?;
+            .map_err(groupforward::transport::TransportError::from)?;
     let mut expressions = groupforward_sim::referring::scene_expressions(&options.scene)
         .map_err(|e| DemoError::Sim(e.to_string()))?;
     let mut relations = std::collections::BTreeSet::new();
@@ -380,6 +382,7 @@ pub fn run_soak(options: &SoakOptions, progress: &dyn Fn(&str)) -> Result<SoakRe
             },
             Duration::from_secs(5),
         )
+        .map_err(DemoError::from)
     };
     let answers = |texts: &[String]| -> Vec<Vec<String>> {
         texts
@@ -420,7 +423,7 @@ pub fn run_soak(options: &SoakOptions, progress: &dyn Fn(&str)) -> Result<SoakRe
     }
     let service = |name: &str| {
         rmw_zenoh::resolve_name(&config.node.namespace, &config.node.name, name)
-            .map_err(crate::transport::TransportError::from)
+            .map_err(groupforward::transport::TransportError::from)
     };
     let (refer, list, get, save, load) = (
         service("~/refer")?,
@@ -583,14 +586,15 @@ pub fn run_soak(options: &SoakOptions, progress: &dyn Fn(&str)) -> Result<SoakRe
         models: config.models.clone(),
         ..Config::default()
     };
-    let mut models = crate::window::WindowModels::load(&eval_config.models, &eval_config.semantics)
-        .map_err(|e| DemoError::Protocol(e.to_string()))?;
+    let mut models =
+        groupforward::window::WindowModels::load(&eval_config.models, &eval_config.semantics)
+            .map_err(|e| DemoError::Protocol(e.to_string()))?;
     for _ in 0..2 {
         let run = crate::eval::run::run_scene(&options.scene, &eval_config, &mut models)
             .map_err(|e| DemoError::Protocol(e.to_string()))?;
         report
             .replay_hashes
-            .push(crate::graph::persist::content_hash(&run.map));
+            .push(groupforward::graph::persist::content_hash(&run.map));
     }
     report.replay_hashes_equal = report.replay_hashes.windows(2).all(|w| w[0] == w[1]);
     Ok(report)

@@ -8,13 +8,13 @@
 use glam::{DVec2, Vec3};
 use rustc_hash::FxHashMap;
 
-use crate::frame::SyncedFrame;
-use crate::group::semantics::Vocabulary;
-use crate::model::semantic::SemanticModel;
-use crate::model::ModelError;
-use crate::recon::boxes::{OrientedBox, DEFAULT_TRIM};
-use crate::refer::concepts::spread;
-use crate::window::WindowOutput;
+use groupforward::frame::SyncedFrame;
+use groupforward::group::semantics::Vocabulary;
+use groupforward::model::semantic::SemanticModel;
+use groupforward::model::ModelError;
+use groupforward::recon::boxes::{OrientedBox, DEFAULT_TRIM};
+use groupforward::refer::concepts::spread;
+use groupforward::window::WindowOutput;
 
 /// Voxel edge (m): about a pixel's footprint at 3 m at the model resolution.
 pub const VOXEL_M: f64 = 0.05;
