@@ -1,4 +1,4 @@
-"""Train GroupForward-mini on simulator datasets with the three-stage curriculum of DESIGN §5.3.
+"""Train GroupForward-mini on simulator datasets with the three-stage curriculum of ARCHITECTURE.md §5.
 
   (1) reconstruction only, instance head frozen;  (2) instance head only;  (3) everything jointly;
   and, with --polish, (4) the instance head alone again for the last share of the budget.

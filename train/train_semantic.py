@@ -1,4 +1,4 @@
-"""Train Semantic-mini on simulator datasets (DESIGN §4: the LSeg role) and score it on val.
+"""Train Semantic-mini on simulator datasets (ARCHITECTURE.md §5: the LSeg role) and score it on val.
 
 Per-pixel softmax over the label set's text embeddings (the node's int8 MiniLM; names and, as a
 second softmax, descriptions; class 0 = `other`), cosines scaled by a learned logit scale, class

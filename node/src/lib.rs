@@ -1,6 +1,6 @@
 //! groupforward: a robotics node that turns camera streams into a referable 3D scene.
 //!
-//! Data flow (DESIGN §2): camera, depth, camera-info and TF messages → [`ingest`] (decode,
+//! Data flow (ARCHITECTURE.md §2): camera, depth, camera-info and TF messages → [`ingest`] (decode,
 //! validate, sync by stamp) → [`window`] (keyframes; one [`model`] pass per window; [`group`]:
 //! HDBSCAN on the embeddings, semantic prototypes) → [`graph`] (fusion into the persistent map,
 //! scene graph, snapshots) → [`refer`] (referring queries on a snapshot of the map) → services and

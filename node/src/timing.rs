@@ -1,4 +1,4 @@
-//! Where a window's and a query's time goes (DESIGN §7): the pipeline's stages, the durations of
+//! Where a window's and a query's time goes (ARCHITECTURE.md §6): the pipeline's stages, the durations of
 //! one pass, and the recent samples per stage that the status message reports as p50 / p99.
 
 use std::collections::VecDeque;

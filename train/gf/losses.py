@@ -1,4 +1,4 @@
-"""Losses of DESIGN §5.3 (the direct terms; rendered terms come with the differentiable rasterizer).
+"""Losses of ARCHITECTURE.md §5 (the direct terms; rendered terms come with the differentiable rasterizer).
 
 Direct: N context pixels are sampled per window with weight 1/sqrt(instance area) (so small objects
 count), their embeddings ℓ2-normalised; centroids are the normalised means per instance;
@@ -189,7 +189,7 @@ def small_intrinsics(k, scale):
 
 
 def rendered_losses(depth, gaussians, embeddings, batch, count=4096, scale=0.25, generator=None):
-    """Rendered terms of DESIGN §5.3 on the context views: assignment probabilities
+    """Rendered terms of ARCHITECTURE.md §5 on the context views: assignment probabilities
     p_gk = softmax_k(−‖e_g − ē_k‖/τ) rendered with dice + focal against the instance masks, rendered
     embeddings pulled to their instance centroid and centroids pushed apart, and a photometric L1.
     Returns (dice, focal, pull, push, photometric), batch means."""

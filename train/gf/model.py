@@ -1,7 +1,7 @@
 """GroupForward-mini: the paper's feed-forward design at small scale, in two input modes.
 
 A shared per-view convolutional encoder, cross-view attention over all views' bottleneck tokens, a
-U-Net decoder, and three heads (DESIGN §4 contract):
+U-Net decoder, and three heads (ARCHITECTURE.md §5 contract):
 - depth [B,V,H,W] in metres (exp of the head, so always positive);
 - gaussians [B,V,11,H,W] = opacity (sigmoid), scale (3, softplus, pixels at unit depth), rotation (4,
   unit quaternion xyzw in the camera frame), colour residual (3, 0.2·tanh);

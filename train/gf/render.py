@@ -1,4 +1,4 @@
-"""A differentiable Gaussian rasterizer in plain PyTorch, for the rendered losses (DESIGN §5.1, §5.3).
+"""A differentiable Gaussian rasterizer in plain PyTorch, for the rendered losses (ARCHITECTURE.md §5).
 
 Dense rather than tiled: every Gaussian against every pixel of a small render (e.g. 32×24), which
 is what makes it fit on a CPU at training resolution. The maths is the node's rasterizer's: EWA

@@ -1,4 +1,4 @@
-"""Semantic-mini (the LSeg role, DESIGN §4, §5.5): one image in, dense features aligned with the
+"""Semantic-mini (the LSeg role, ARCHITECTURE.md §5): one image in, dense features aligned with the
 all-MiniLM-L6-v2 text embedding space out.
 
 `image` [1,3,H,W] in [0,1] -> `features` [1,384,H/2,W/2], ℓ2-normalised per pixel, so a pixel's (or

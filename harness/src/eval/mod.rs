@@ -1,4 +1,4 @@
-//! Evaluation against the simulator's ground truth (DESIGN §7), the first part of
+//! Evaluation against the simulator's ground truth (ARCHITECTURE.md §6), the first part of
 //! `groupforward eval`:
 //!
 //! - [`baseline`]: the ablation without instances (semantic features lifted per voxel);

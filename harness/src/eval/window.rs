@@ -1,4 +1,4 @@
-//! Per-window scores (DESIGN §7): windows of sim scenes no training saw through the node's window
+//! Per-window scores (ARCHITECTURE.md §6): windows of sim scenes no training saw through the node's window
 //! pass, scored against the simulator's ground truth as the paper scores a feed-forward pass:
 //! depth abs-rel and δ<1.25 of the model's own depth, instance ARI of the window's instances,
 //! semantic pixel accuracy and mIoU of the semantic model in the source views, and in a novel view

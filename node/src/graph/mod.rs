@@ -1,4 +1,4 @@
-//! The persistent instance map and its scene graph (DESIGN §5.6).
+//! The persistent instance map and its scene graph (ARCHITECTURE.md §4).
 //!
 //! Each window pass yields instances (Gaussians plus a semantic prototype). [`SceneMap::fuse`]
 //! associates them with the persistent instances by 3D overlap (nearest-neighbour ratio) plus

@@ -1,6 +1,6 @@
 //! The scene graph derived from the map: nodes (prototype, centre, extent, volume, per keyframe
 //! projected box and visibility) and edges (distance, height difference, size ratio, per keyframe
-//! projected distance, direction and overlap), DESIGN §5.6.
+//! projected distance, direction and overlap), ARCHITECTURE.md §4.
 
 use glam::{DVec2, DVec3, Vec3};
 

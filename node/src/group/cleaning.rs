@@ -1,4 +1,4 @@
-//! Map hygiene at the window level (DESIGN §5.6), as mapping systems do it: flying pixels (depths
+//! Map hygiene at the window level (ARCHITECTURE.md §4), as mapping systems do it: flying pixels (depths
 //! between two surfaces along a silhouette, which lift to points in the air) and nearly
 //! transparent Gaussians are not grouped into objects, and a
 //! cluster whose points fall apart in space is split into its 3D connected components, the small

@@ -1,4 +1,4 @@
-//! Instance grouping (DESIGN §5.4): the embeddings of all context views are clustered jointly
+//! Instance grouping (ARCHITECTURE.md §2): the embeddings of all context views are clustered jointly
 //! with HDBSCAN on a subsample, and every embedding is then assigned to a cluster by the softmax
 //! over its distances to the cluster centroids, p_k = softmax_k(−‖e − ē_k‖ / τ), with a noise
 //! threshold on the distance. Each embedding belongs to a pixel-aligned Gaussian, so a cluster is

@@ -1,4 +1,4 @@
-//! Semantics stored once per instance, and instances carried into any view (DESIGN §5.5).
+//! Semantics stored once per instance, and instances carried into any view (ARCHITECTURE.md §2).
 //!
 //! Prototype of instance k: f_k = Σ_v Σ_u M_{v,k}(u) F_v(u) / Σ_v Σ_u M_{v,k}(u), the masked mean
 //! of the semantic model's features over the context views. In a target view the assignment

@@ -1,4 +1,4 @@
-//! Model runtime (DESIGN §4): ONNX models through `ort` with a dynamically loaded ONNX Runtime.
+//! Model runtime (ARCHITECTURE.md §5): ONNX models through `ort` with a dynamically loaded ONNX Runtime.
 //!
 //! The ONNX Runtime shared library comes from the PyPI `onnxruntime` wheel (nothing is downloaded by
 //! the build). It is found by, in order: the config key, `ORT_DYLIB_PATH`, the project-local venv that

@@ -1,4 +1,4 @@
-//! The reconstruction model runner (GroupForward role, DESIGN §4): V views in, per-pixel depth,
+//! The reconstruction model runner (GroupForward role, ARCHITECTURE.md §5): V views in, per-pixel depth,
 //! Gaussian attributes and instance embeddings out, lifted to world-space Gaussians.
 //!
 //! Contract: `images` f32 [1,V,3,H,W] in [0,1] (normalised as the manifest says); in RGB-D mode also

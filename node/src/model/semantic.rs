@@ -1,4 +1,4 @@
-//! The semantic model runner (LSeg role, DESIGN §4): one image in, dense features in the text
+//! The semantic model runner (LSeg role, ARCHITECTURE.md §5): one image in, dense features in the text
 //! encoder's embedding space out, so a pixel's (or an instance prototype's) cosine to a phrase's
 //! text embedding scores the phrase.
 //!

@@ -1,4 +1,4 @@
-//! Gauge alignment (DESIGN §5.2). A model pass predicts cameras in its own gauge (first camera at
+//! Gauge alignment (ARCHITECTURE.md §2). A model pass predicts cameras in its own gauge (first camera at
 //! the origin, arbitrary scale). The paper's scale between two predictions sharing views C is
 //! `γ = Σ_C ‖t_ref‖ / Σ_C ‖t_new‖`; in the node the reference is the world, and a Sim(3) fit
 //! (Umeyama) on the shared camera centres gives rotation, translation and scale together.

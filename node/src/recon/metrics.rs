@@ -1,4 +1,4 @@
-//! Metrics every benchmark reports (DESIGN §7), defined exactly as scikit-image / scikit-learn
+//! Metrics every benchmark reports (ARCHITECTURE.md §6), defined exactly as scikit-image / scikit-learn
 //! compute them (checked against reference numbers those libraries produced):
 //! PSNR; SSIM (11×11 Gaussian window, σ = 1.5, K1 = 0.01, K2 = 0.03, population covariance,
 //! mean over pixels whose window lies inside the image, then over channels); depth abs-rel and

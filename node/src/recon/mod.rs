@@ -1,4 +1,4 @@
-//! Reconstruction core (DESIGN §5.1–5.2, §7): cameras and frames, pixel-aligned 3D Gaussians, a
+//! Reconstruction core (ARCHITECTURE.md §2, §6): cameras and frames, pixel-aligned 3D Gaussians, a
 //! tile rasterizer for any channel set, gauge alignment between model passes, and the metrics every
 //! benchmark reports.
 //!

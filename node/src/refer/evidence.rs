@@ -1,4 +1,4 @@
-//! The evidence bundle a reasoner sees (DESIGN §5.7): per candidate the structured node as JSON
+//! The evidence bundle a reasoner sees (ARCHITECTURE.md §2): per candidate the structured node as JSON
 //! (names, centre, extent, volume, colour, visibility, its nearest neighbours), and images
 //! rendered from the map with the rasterizer at the newest keyframe: a global overview with the
 //! candidates' outlines numbered (the current choice drawn heavier), per candidate its mask

@@ -1,4 +1,4 @@
-//! Referring (RSRF, DESIGN §5.7): an expression in, the instances it means out, with every
+//! Referring (RSRF, ARCHITECTURE.md §2): an expression in, the instances it means out, with every
 //! candidate's scores and the reasoning that chose them. One file per step:
 //!
 //! - [`parse`]: expression → target concept, cardinality, attributes, relation, anchors;

@@ -1,6 +1,6 @@
 //! Parse a referring expression into what the retrieval and the reasoners need: the target
 //! concept, how many instances the expression asks for, attributes, one relation and its anchor
-//! concepts (DESIGN §5.7). Rule-based and deterministic: relation words from the Sr3D taxonomy,
+//! concepts (ARCHITECTURE.md §2). Rule-based and deterministic: relation words from the Sr3D taxonomy,
 //! superlatives, colour and size adjectives, cardinality words and function phrases ("the thing
 //! you can wash hands"). Concepts stay phrases: the text encoder compares them with the map's
 //! instances, so any words work; nothing here maps a word to a class.

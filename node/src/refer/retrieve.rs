@@ -1,4 +1,4 @@
-//! Retrieval: every instance scored against the parsed expression, the top K kept (DESIGN §5.7).
+//! Retrieval: every instance scored against the parsed expression, the top K kept (ARCHITECTURE.md §2).
 //! Three scores per instance, each in [0, 1] and all reported: semantic (the target concept),
 //! geometric (the relation to the best anchors, the superlative or the colour asked for, as soft
 //! margins around Sr3D's thresholds), visibility (ν in the newest keyframes). Relations are

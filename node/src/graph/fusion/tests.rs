@@ -1,0 +1,219 @@
+use super::folds::{is_back_of, is_leg_of, ONE_SPACE_IOU};
+use super::footprint::{share_bounds, Footprint, Footprints, BACK_SPREAD_SHARE};
+use super::*;
+use crate::graph::instance::bounds;
+use crate::recon::boxes::OrientedBox;
+use crate::recon::gaussians::Gaussians;
+use glam::Quat;
+use rand::{Rng, SeedableRng};
+
+/// Points along a random segment with a little spread: thin diagonal sets are where a fitted
+/// box pokes out of the points' axis-aligned bounds the most.
+fn rod(rng: &mut rand_chacha::ChaCha8Rng, centre: Vec3) -> Gaussians {
+    let mut g = Gaussians::with_dims(0, 0);
+    let half = Vec3::new(
+        rng.random_range(-1.0..1.0),
+        rng.random_range(-1.0..1.0),
+        0.0,
+    ) * rng.random_range(0.05..1.5);
+    for k in 0..60 {
+        let t = k as f32 / 59.0 * 2.0 - 1.0;
+        let jitter = Vec3::new(
+            rng.random_range(-0.02..0.02),
+            rng.random_range(-0.02..0.02),
+            rng.random_range(0.0..0.3),
+        );
+        let p = centre + half * t + jitter;
+        g.push(
+            p,
+            0.9,
+            Vec3::splat(0.01),
+            Quat::IDENTITY,
+            Vec3::splat(0.5),
+            &[],
+            &[],
+        );
+    }
+    g
+}
+
+#[test]
+fn no_two_objects_of_the_training_rooms_fill_one_space() {
+    // ONE_SPACE_IOU against the data: the largest 3D IoU of two objects' true boxes in the
+    // first 200 training rooms is a small share of it.
+    let mut largest = 0.0f64;
+    for room in super::super::amodal::training_rooms() {
+        for (k, (_, a)) in room.iter().enumerate() {
+            for (_, b) in &room[k + 1..] {
+                largest = largest.max(a.iou(b));
+            }
+        }
+    }
+    assert!(largest > 0.0, "some objects touch (a pillow on a bed)");
+    assert!(largest < ONE_SPACE_IOU / 4.0, "{largest}");
+}
+
+#[test]
+fn fragments_born_in_one_window_fold_into_the_lower_id_however_often_the_other_was_seen() {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+    let piece = rod(&mut rng, Vec3::new(2.0, 2.6, 0.4));
+    let fragment = |id: &str, observations: u32| Instance {
+        id: id.to_owned(),
+        gaussians: piece.clone(),
+        prototype: vec![1.0, 0.0, 0.0],
+        prototype_weight: 1.0,
+        confidence: 0.5,
+        observations,
+        first_seen_nanos: 1_000,
+        last_seen_nanos: 2_000,
+        viewpoint: None,
+        viewpoint_weight: 0.0,
+        range_noise_m: 0.0,
+        range_noise_weight: 0.0,
+    };
+    // Two pieces of one chair born in one window; the younger was seen again by the next
+    // window, the older is the one the map listed. Ids compare in birth order (010 > 009).
+    for (older, younger) in [
+        ("inst_000002", "inst_000003"),
+        ("inst_000009", "inst_000010"),
+    ] {
+        let mut map = SceneMap::new(FusionParams::default());
+        map.instances = vec![fragment(younger, 2), fragment(older, 1)];
+        let folded = map.fold_fragments(&|_: &[f32], _: &[f32]| true);
+        assert_eq!(folded, vec![(younger.to_owned(), older.to_owned())]);
+        assert_eq!(map.instances.len(), 1);
+        assert_eq!(map.instances[0].id, older);
+    }
+}
+
+#[test]
+fn a_leg_needs_finite_bounds_an_upright_shape_and_a_surface_over_it() {
+    let top = (Vec3::new(-0.4, -0.3, 0.72), Vec3::new(0.4, 0.3, 0.75));
+    let leg = (Vec3::new(0.3, 0.2, 0.0), Vec3::new(0.35, 0.25, 0.7));
+    assert!(is_leg_of(leg, top));
+    assert!(!is_leg_of(top, leg), "the top is no leg of its leg");
+    let empty = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+    let nan = (Vec3::splat(f32::NAN), Vec3::splat(f32::NAN));
+    for bad in [empty, nan] {
+        assert!(!is_leg_of(bad, top) && !is_leg_of(leg, bad));
+    }
+    // A point (one Gaussian) and a flat stub are not upright; a leg ending a hand below the
+    // top carries something else; a leg poking out beside the top is not under it.
+    let point = (Vec3::new(0.3, 0.2, 0.5), Vec3::new(0.3, 0.2, 0.5));
+    let stub = (Vec3::new(0.3, 0.2, 0.0), Vec3::new(0.35, 0.25, 0.05));
+    let short = (Vec3::new(0.3, 0.2, 0.0), Vec3::new(0.35, 0.25, 0.5));
+    let beside = (Vec3::new(0.52, 0.2, 0.0), Vec3::new(0.57, 0.25, 0.7));
+    // A monitor standing on a desk whose points reach the floor: thin, upright, under the
+    // desk's top and ending near the top of its bounds (the monitor's own), but it does not
+    // reach down.
+    let desk = (Vec3::new(-0.4, -0.3, 0.0), Vec3::new(0.4, 0.3, 1.2));
+    let monitor = (Vec3::new(-0.25, 0.0, 0.75), Vec3::new(0.25, 0.05, 1.2));
+    assert!(!is_leg_of(monitor, desk));
+    assert!(is_leg_of(
+        (Vec3::new(-0.25, 0.0, 0.0), Vec3::new(0.25, 0.05, 1.2)),
+        desk
+    ));
+    for not_a_leg in [point, stub, short, beside] {
+        assert!(!is_leg_of(not_a_leg, top), "{not_a_leg:?}");
+    }
+}
+
+#[test]
+fn a_headboard_folds_into_its_bed_but_not_into_the_twin_bed_beside_it() {
+    // The foot end of a bed seen (x 5.1-6.6), its headboard 0.85 m beyond (x 7.45-7.6),
+    // wider than the part of the mattress seen, rising above it.
+    let mattress = (Vec3::new(5.1, 1.9, 0.0), Vec3::new(6.6, 2.6, 0.48));
+    let headboard = (Vec3::new(7.45, 1.1, 0.48), Vec3::new(7.6, 3.0, 1.2));
+    assert!(is_back_of(headboard, mattress, 0.0));
+    assert!(
+        !is_back_of(mattress, headboard, 0.0),
+        "the mattress is no back"
+    );
+    // A twin bed beside it (y 3.4-5.0): the headboard lies along its own bed, not this one.
+    let twin = (Vec3::new(5.6, 3.4, 0.0), Vec3::new(7.5, 5.0, 0.48));
+    assert!(!is_back_of(headboard, twin, 0.0));
+    // A chair in the row behind another: its back is no higher than the other chair.
+    let chair = (Vec3::new(0.0, 0.0, 0.0), Vec3::new(0.45, 0.45, 0.9));
+    let back_of_the_chair_behind = (Vec3::new(0.0, 0.7, 0.45), Vec3::new(0.45, 0.75, 0.9));
+    assert!(!is_back_of(back_of_the_chair_behind, chair, 0.0));
+    // Farther than the gap, in the seat's middle, or without finite bounds: no back.
+    let far = (Vec3::new(7.7, 1.1, 0.48), Vec3::new(7.85, 3.0, 1.2));
+    let across_the_middle = (Vec3::new(5.8, 1.1, 0.48), Vec3::new(5.95, 3.0, 1.2));
+    assert!(!is_back_of(far, mattress, 0.0) && !is_back_of(across_the_middle, mattress, 0.0));
+    let nan = (Vec3::splat(f32::NAN), Vec3::splat(f32::NAN));
+    let empty = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+    for bad in [nan, empty] {
+        assert!(!is_back_of(bad, mattress, 0.0) && !is_back_of(headboard, bad, 0.0));
+    }
+}
+
+#[test]
+fn a_noisy_back_is_judged_by_its_central_points_less_the_noise_and_degenerate_sets_are_no_back() {
+    // 100 points along x (0..99 cm) and two non-finite ones: 5% each side left out.
+    let mut points: Vec<Vec3> = (0..100)
+        .map(|i| Vec3::new(i as f32 * 0.01, 0.0, 0.0))
+        .collect();
+    points.push(Vec3::NAN);
+    points.push(Vec3::new(f32::INFINITY, 0.0, 0.0));
+    let (lo, hi) = share_bounds(&points, BACK_SPREAD_SHARE);
+    assert!(
+        (lo.x - 0.05).abs() < 1e-6 && (hi.x - 0.94).abs() < 1e-6,
+        "{lo} {hi}"
+    );
+    let single = share_bounds(&[Vec3::ONE], BACK_SPREAD_SHARE);
+    assert_eq!(single, (Vec3::ONE, Vec3::ONE));
+    let empty = share_bounds(&[Vec3::NAN], BACK_SPREAD_SHARE);
+    assert_eq!(empty, (Vec3::INFINITY, Vec3::NEG_INFINITY));
+    // A headboard 0.9 m deep through noise: a back only with the noise's spread allowed for.
+    let mattress = (Vec3::new(5.1, 1.9, 0.0), Vec3::new(6.6, 2.6, 0.48));
+    let spread_headboard = (Vec3::new(7.1, 1.1, 0.48), Vec3::new(8.0, 3.0, 1.2));
+    assert!(!is_back_of(spread_headboard, mattress, 0.0));
+    assert!(is_back_of(spread_headboard, mattress, 0.6));
+    // Noise never makes a back of what is no back: the mattress, or a chair's neighbour.
+    assert!(!is_back_of(mattress, spread_headboard, 0.6));
+    // A lamp's shade above another lamp, 21 cm across each way: the noise makes it thin,
+    // never long.
+    let lamp = (Vec3::new(0.0, 0.0, 0.0), Vec3::new(0.25, 0.25, 0.52));
+    let shade = (Vec3::new(0.02, 0.3, 0.7), Vec3::new(0.234, 0.51, 0.83));
+    assert!(!is_back_of(shade, lamp, 0.18));
+    for bad in [f32::NAN, -0.1, f32::INFINITY] {
+        assert!(!is_back_of(spread_headboard, mattress, bad), "{bad}");
+    }
+    assert!(!is_back_of(empty, mattress, 0.6));
+}
+
+#[test]
+fn pairs_judged_far_apart_never_have_intersecting_boxes_or_touching_footprints() {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+    let (mut pruned, mut trials) = (0, 0);
+    for _ in 0..400 {
+        let offset = Vec3::new(
+            rng.random_range(-4.0..4.0),
+            rng.random_range(-4.0..4.0),
+            0.0,
+        );
+        let (a, b) = (rod(&mut rng, Vec3::ZERO), rod(&mut rng, offset));
+        let footprints = Footprints {
+            voxel: 0.05,
+            built: vec![None, None],
+            bounds: vec![bounds(&a), bounds(&b)],
+            spread: vec![None, None],
+            boxes: vec![None, None],
+        };
+        if !footprints.far_apart(0, 1) {
+            continue;
+        }
+        pruned += 1;
+        let (box_a, box_b) = (
+            OrientedBox::fit(&a.means, crate::recon::boxes::DEFAULT_TRIM),
+            OrientedBox::fit(&b.means, crate::recon::boxes::DEFAULT_TRIM),
+        );
+        assert_eq!(box_a.iou(&box_b), 0.0, "boxes of a far pair intersect");
+        let (fa, fb) = (Footprint::new(&a, 0.05), Footprint::new(&b, 0.05));
+        assert_eq!(fa.overlap(&fb, 1.5 * fa.spacing.max(fb.spacing)), 0.0);
+        trials += 1;
+    }
+    // The check must have pruned something, and not everything.
+    assert!(pruned > 50 && pruned < 400, "{pruned} of 400 pruned");
+    assert_eq!(trials, pruned);
+}
