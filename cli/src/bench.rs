@@ -430,7 +430,7 @@ fn python_reference(
     let output = dir.join("labels.i32");
     let bytes: Vec<u8> = points.iter().flat_map(|v| v.to_le_bytes()).collect();
     std::fs::write(&input, bytes)?;
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("benches/hdbscan_reference.py");
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../node/benches/hdbscan_reference.py");
     let result = std::process::Command::new(python)
         .arg(&script)
         .arg(&input)

@@ -52,6 +52,7 @@ pub fn refer_bench(sizes: &[usize], rounds: usize, out: &Path) -> Result<()> {
         phrases: phrases.clone(),
         embeddings: embeddings.clone(),
         temperature: DEFAULT_SEMANTIC_TEMPERATURE,
+        priors: groupforward::group::semantics::ClassPriors::builtin(),
     };
     let encoder = Arc::new(Mutex::new(encoder));
     let views = bench_views()?;

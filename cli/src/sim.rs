@@ -81,9 +81,9 @@ pub enum SimCommand {
         #[arg(long)]
         out: PathBuf,
     },
-    /// Write the default vocabulary file (the simulator's object classes) that the node embeds:
-    /// `--out node/data/default_vocabulary.yaml` after the class library changed; without
-    /// `--out`, print it.
+    /// Write the default vocabulary file that the node embeds: the simulator's object classes with
+    /// their priors measured on the training rooms (`--out node/data/default_vocabulary.yaml`
+    /// after the class library or the training split changed); without `--out`, print it.
     Vocabulary {
         #[arg(long)]
         out: Option<PathBuf>,

@@ -207,6 +207,9 @@ impl Config {
         {
             return invalid("semantics.vocabulary must not contain empty phrases".into());
         }
+        if let Err(e) = self.semantics.class_priors() {
+            return invalid(format!("semantics.vocabulary_file: {e}"));
+        }
         if self.tf.world_frame.is_empty() {
             return invalid("tf.world_frame must not be empty".into());
         }

@@ -406,6 +406,7 @@ fn vocabulary(temperature: f32) -> groupforward::group::semantics::Vocabulary {
             vec![0.0, 0.0, 1.0],
         ],
         temperature,
+        priors: groupforward::group::semantics::ClassPriors::builtin(),
     }
 }
 

@@ -147,3 +147,67 @@ fn the_demo_scene_s_map_finds_its_objects_and_answers_its_referring_expressions(
         .collect();
     assert!(right_masks.iter().sum::<f64>() / right_masks.len() as f64 > 0.2);
 }
+
+/// A user's vocabulary of classes the simulator has never heard of, from a vocabulary file of
+/// their own without priors: the text encoder names the instances with its phrases, and the map
+/// runs with class-agnostic rules (no per-name prior is needed).
+#[test]
+fn a_vocabulary_of_classes_the_sim_never_heard_of_names_instances_without_priors() {
+    let models = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models");
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("vocabulary.yaml");
+    std::fs::write(
+        &file,
+        "classes:\n  - name: whiteboard\n  - name: fire extinguisher\n  - name: coat rack\n",
+    )
+    .unwrap();
+    let mut config = Config {
+        models: ModelsSection::shipped_in(&models),
+        ..Config::default()
+    };
+    config.semantics.vocabulary = ["whiteboard", "fire extinguisher", "coat rack", "other"]
+        .map(String::from)
+        .to_vec();
+    config.semantics.vocabulary_file = Some(file);
+    config.validate().unwrap();
+    let mut window_models = WindowModels::load(&config.models, &config.semantics).unwrap();
+    let priors = &window_models.vocabulary.as_ref().unwrap().priors;
+    for name in ["whiteboard", "fire extinguisher", "coat rack", "chair"] {
+        assert_eq!(priors.typical_depth(name), None);
+        assert_eq!(priors.largest_side(name), None);
+        assert!(!priors.stands_on_floor(name));
+    }
+    let scene = SceneFile::builtin("two_chairs").unwrap();
+    let run = run_scene(&scene, &config, &mut window_models).unwrap();
+    assert!(run.windows.len() >= 5, "{} windows", run.windows.len());
+    assert!(!run.map.instances.is_empty());
+    assert!(!run.instances.is_empty(), "nothing listed");
+    for listed in &run.instances {
+        assert!(
+            ["whiteboard", "fire extinguisher", "coat rack"].contains(&listed.name.as_str()),
+            "{listed:?}"
+        );
+        assert!(listed.bbox.centre.is_finite() && listed.bbox.size.is_finite());
+    }
+}
+
+/// A vocabulary file with a mistake is refused when the config is checked, naming the file, the
+/// line and the class, before any model loads.
+#[test]
+fn a_vocabulary_file_with_a_mistake_is_a_config_error_naming_where() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("vocabulary.yaml");
+    std::fs::write(&file, "classes:\n  - name: crate\n    typical_depth: 0.4\n").unwrap();
+    let mut config = Config::default();
+    config.semantics.vocabulary_file = Some(file.clone());
+    let message = config.validate().unwrap_err().to_string();
+    assert!(
+        message.contains("semantics.vocabulary_file")
+            && message.contains(&file.display().to_string())
+            && message.contains("line 3"),
+        "{message}"
+    );
+    config.semantics.vocabulary_file = Some(dir.path().join("missing.yaml"));
+    let message = config.validate().unwrap_err().to_string();
+    assert!(message.contains("missing.yaml"), "{message}");
+}

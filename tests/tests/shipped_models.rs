@@ -42,6 +42,7 @@ fn vocabulary() -> Vocabulary {
         embeddings: phrases.iter().map(|p| encoder.embed(p).unwrap()).collect(),
         phrases,
         temperature: 0.05,
+        priors: groupforward::group::semantics::ClassPriors::builtin(),
     }
 }
 

@@ -3,61 +3,13 @@
 //! deep (3D IoU with the object near zero; `eval map` traces most such losses to this). Where the
 //! wall completion ([`super::walls`]) has no wall to read, the object's name does: the box is
 //! extended along its thin axis, away from where the cameras that saw it stood, to the depth
-//! objects of that name typically have. A size prior, so only for names with one, and only for
-//! boxes much thinner than that depth: a box already deep enough is never changed.
+//! objects of that name typically have (its class prior in the vocabulary file,
+//! [`crate::group::vocabulary::ClassPriors`]). A size prior, so only for names with one, and only
+//! for boxes much thinner than that depth: a box already deep enough is never changed.
 
 use glam::{DVec2, DVec3, Vec3};
 
 use crate::recon::boxes::OrientedBox;
-
-/// Typical depth (m) of the objects each name stands for: the median shorter horizontal side of
-/// the ground-truth boxes of the simulator's `train` split (the scenes the models were trained
-/// on; `the_typical_depths_are_the_training_rooms_medians` recomputes them). Names without an
-/// entry (round objects, whose completion is the circle's; structure) are never extended.
-pub const TYPICAL_DEPTH_M: &[(&str, f64)] = &[
-    ("chair", 0.45),
-    ("sofa", 0.86),
-    ("table", 0.78),
-    ("desk", 0.69),
-    ("bed", 1.55),
-    ("cabinet", 0.50),
-    ("bookshelf", 0.32),
-    ("refrigerator", 0.66),
-    ("monitor", 0.16),
-    ("toilet", 0.40),
-    ("sink", 0.44),
-    ("box", 0.29),
-];
-
-/// The smallest depth (shorter horizontal side, m) an object of each box-like name has: the
-/// smallest over the same training rooms' ground-truth boxes
-/// (`the_smallest_depths_are_the_training_rooms_smallest` recomputes them). A face with a wall
-/// closer behind it than this is not the front of such an object but its back: the object
-/// stands in front of it.
-pub const SMALLEST_DEPTH_M: &[(&str, f64)] = &[
-    ("chair", 0.38),
-    ("sofa", 0.77),
-    ("table", 0.68),
-    ("desk", 0.60),
-    ("bed", 1.36),
-    ("cabinet", 0.43),
-    ("bookshelf", 0.27),
-    ("refrigerator", 0.56),
-    ("monitor", 0.14),
-    ("toilet", 0.34),
-    ("sink", 0.37),
-    ("box", 0.26),
-];
-
-/// The value of `name` in a table of per-name measures.
-fn by_name(table: &[(&str, f64)], name: &str) -> Option<f64> {
-    table.iter().find(|(n, _)| *n == name).map(|(_, v)| *v)
-}
-
-/// The smallest depth objects called `name` have, if known ([`SMALLEST_DEPTH_M`]).
-pub fn smallest_depth(name: &str) -> Option<f64> {
-    by_name(SMALLEST_DEPTH_M, name)
-}
 
 /// A box is extended only when it is thinner than this share of the typical depth.
 pub const THIN_SHARE: f64 = 0.35;
@@ -66,11 +18,6 @@ pub const THIN_SHARE: f64 = 0.35;
 pub const MIN_FACE_M: f64 = 0.15;
 /// The viewpoint must lie at least this far off the face's plane (m) to tell its sides apart.
 const MIN_VIEW_OFFSET_M: f64 = 0.1;
-
-/// The typical depth of `name`'s objects, if it has one.
-pub fn typical_depth(name: &str) -> Option<f64> {
-    by_name(TYPICAL_DEPTH_M, name)
-}
 
 /// `fitted` extended along its thin horizontal axis, away from `viewpoint`, to `depth`, when it
 /// is a face of an object of that depth seen from one side (see the module notes); otherwise
@@ -117,33 +64,14 @@ pub fn complete_toward(fitted: OrientedBox, viewpoint: Vec3, depth: f64) -> Orie
     complete_away_from(fitted, mirrored.as_vec3(), depth)
 }
 
-/// Names of objects that stand on the floor (every one of them in the simulator's rooms, and
-/// nearly every one in a real room). A chair seen over a table is its backrest, a bed seen from
-/// across the room its mattress: the box fitted to those points floats, and its 3D IoU with the
-/// object is small. Not sinks (on counters or walls), lamps, plants or boxes (on furniture as
-/// often as on the floor), monitors and pillows (always on something).
-pub const FLOOR_STANDING: &[&str] = &[
-    "chair",
-    "sofa",
-    "table",
-    "desk",
-    "bed",
-    "cabinet",
-    "bookshelf",
-    "refrigerator",
-    "toilet",
-    "trash bin",
-];
+/// Objects that stand on the floor (a class prior, `stands_on_floor` in the vocabulary file): a
+/// chair seen over a table is its backrest, a bed seen from across the room its mattress, and the
+/// box fitted to those points floats, its 3D IoU with the object small.
 /// A box whose bottom is this far above the floor or less already stands on it.
 pub const RAISED_M: f64 = 0.2;
 /// Boxes whose top is higher than this above the floor are left alone: no furniture of these
 /// names is that tall, so the name or the floor is wrong.
 pub const MAX_STANDING_TOP_M: f64 = 2.2;
-
-/// Whether objects called `name` stand on the floor ([`FLOOR_STANDING`]).
-pub fn stands_on_floor(name: &str) -> bool {
-    FLOOR_STANDING.contains(&name)
-}
 
 /// `fitted` extended down to `floor` when it floats above it (its bottom more than
 /// [`RAISED_M`] up, its top at most [`MAX_STANDING_TOP_M`]): the lower part of an object that
@@ -165,33 +93,6 @@ pub fn down_to_floor(fitted: OrientedBox, floor: f64) -> OrientedBox {
     standing
 }
 
-/// The longest horizontal side (m) an object of each name has: the largest over the ground-truth
-/// boxes of the simulator's `train` split's first 200 rooms (`the_largest_sides_are_the_training_
-/// rooms_largest` recomputes them). Names without an entry (structure) have no bound.
-pub const LARGEST_SIDE_M: &[(&str, f64)] = &[
-    ("chair", 0.52),
-    ("sofa", 2.30),
-    ("table", 1.38),
-    ("desk", 1.61),
-    ("bed", 2.34),
-    ("cabinet", 0.92),
-    ("bookshelf", 1.03),
-    ("refrigerator", 0.80),
-    ("monitor", 0.64),
-    ("toilet", 0.57),
-    ("sink", 0.69),
-    ("box", 0.46),
-    ("trash bin", 0.41),
-    ("lamp", 0.27),
-    ("plant", 0.50),
-    ("pillow", 0.69),
-];
-
-/// The longest horizontal side objects called `name` have, if known ([`LARGEST_SIDE_M`]).
-pub fn largest_side(name: &str) -> Option<f64> {
-    by_name(LARGEST_SIDE_M, name)
-}
-
 /// `fitted` with its thinner horizontal side `extent` long and its centre moved by `shift` in
 /// the ground plane: a face completed to the object behind it.
 pub(super) fn deepened(fitted: OrientedBox, shift: DVec2, extent: f64) -> OrientedBox {
@@ -207,8 +108,9 @@ pub(super) fn deepened(fitted: OrientedBox, shift: DVec2, extent: f64) -> Orient
 }
 
 /// The class name and ground-truth box of every object, room by room, in the first 200 scenes
-/// of the simulator's `train` split (the rooms the models were trained on): what the size
-/// priors here and the fold thresholds in [`super::fusion`] are checked against.
+/// of the simulator's `train` split (the rooms the models were trained on): what the fold
+/// thresholds in [`super::fusion`] and the floor patch height are checked against (the class
+/// priors of the default vocabulary are measured there by `groupforward sim vocabulary`).
 #[cfg(test)]
 pub(crate) fn training_rooms() -> Vec<Vec<(&'static str, OrientedBox)>> {
     use groupforward_sim::procedural::{generate, Split};
@@ -371,25 +273,6 @@ mod tests {
     }
 
     #[test]
-    fn what_stands_on_the_floor_in_the_training_rooms_is_every_floor_standing_name() {
-        let bottoms = training_boxes(|b| b.centre.z - b.size.z / 2.0);
-        for name in FLOOR_STANDING {
-            let seen = bottoms
-                .get(name)
-                .unwrap_or_else(|| panic!("no {name} in train"));
-            assert!(
-                seen.iter().all(|z| z.abs() < 0.01),
-                "a {name} off the floor: {seen:?}"
-            );
-        }
-        // The names left out are found off the floor.
-        for name in ["lamp", "box", "plant", "monitor", "pillow"] {
-            let seen = &bottoms[name];
-            assert!(seen.iter().any(|z| *z > RAISED_M), "{name}: {seen:?}");
-        }
-    }
-
-    #[test]
     fn every_object_of_the_training_rooms_rises_well_above_the_floor_patch_height() {
         let tops = training_boxes(|b| b.centre.z + b.size.z / 2.0);
         let lowest = tops
@@ -401,49 +284,5 @@ mod tests {
             lowest > 2.0 * super::super::walls::FLOOR_TOP_M,
             "an object's top {lowest:.3} m up"
         );
-    }
-
-    #[test]
-    fn the_largest_sides_are_the_training_rooms_largest() {
-        let sides = training_boxes(|b| b.size.x.max(b.size.y));
-        assert_eq!(LARGEST_SIDE_M.len(), sides.len(), "every class has a bound");
-        for (name, shipped) in LARGEST_SIDE_M {
-            let largest = sides[name].iter().copied().fold(0.0, f64::max);
-            assert!(
-                (largest - shipped).abs() <= 0.01,
-                "{name}: shipped {shipped}, train's largest {largest:.3}"
-            );
-        }
-    }
-
-    #[test]
-    fn the_smallest_depths_are_the_training_rooms_smallest() {
-        let depths = training_boxes(|b| b.size.x.min(b.size.y));
-        assert_eq!(SMALLEST_DEPTH_M.len(), TYPICAL_DEPTH_M.len());
-        for (name, shipped) in SMALLEST_DEPTH_M {
-            let smallest = depths[name].iter().copied().fold(f64::INFINITY, f64::min);
-            assert!(
-                (smallest - shipped).abs() <= 0.01,
-                "{name}: shipped {shipped}, train's smallest {smallest:.3}"
-            );
-            assert!(typical_depth(name).is_some_and(|typical| typical >= *shipped));
-        }
-    }
-
-    #[test]
-    fn the_typical_depths_are_the_training_rooms_medians() {
-        let mut depths = training_boxes(|b| b.size.x.min(b.size.y));
-        for (name, shipped) in TYPICAL_DEPTH_M {
-            let seen = depths
-                .get_mut(name)
-                .unwrap_or_else(|| panic!("no {name} in train"));
-            seen.sort_by(f64::total_cmp);
-            let median = seen[seen.len() / 2];
-            println!("{name}: {median:.3} over {}", seen.len());
-            assert!(
-                (median - shipped).abs() <= 0.1 * shipped,
-                "{name}: shipped {shipped}, train median {median:.3}"
-            );
-        }
     }
 }

@@ -14,7 +14,7 @@ use glam::{DVec2, Vec3};
 use super::instance::Fitted;
 use super::{amodal, Instance, SceneMap};
 use crate::group::cleaning::floor_height;
-use crate::group::semantics::Vocabulary;
+use crate::group::semantics::{ClassPriors, Vocabulary};
 use crate::recon::boxes::OrientedBox;
 
 /// A box thinner than this along one horizontal axis is a surface seen from one side.
@@ -325,6 +325,9 @@ pub fn object_list<'a>(
     mut fit: impl FnMut(&Instance, bool) -> Fitted,
 ) -> Vec<(&'a Instance, OrientedBox)> {
     let walls = std::cell::OnceCell::new();
+    // Without a vocabulary nothing is named, so no prior applies.
+    let no_priors = ClassPriors::default();
+    let priors = vocabulary.map_or(&no_priors, |v| &v.priors);
     map.instances
         .iter()
         .filter(|i| vocabulary.is_none_or(|v| v.is_listed(&i.prototype, i.gaussians.len())))
@@ -334,11 +337,12 @@ pub fn object_list<'a>(
                 .and_then(|v| v.hypotheses(&i.prototype, 1).into_iter().next())
                 .map(|(name, _)| name);
             let name = name.as_deref();
-            let box_like = name.is_some_and(|n| amodal::typical_depth(n).is_some());
+            let box_like = name.is_some_and(|n| priors.typical_depth(n).is_some());
             let fitted = fit(i, box_like);
             let publish = |b: OrientedBox| {
                 published_box(b, &walls, map, vocabulary).map(|placed| {
-                    seen_from_one_side(placed, i, name, || map_walls(&walls, map, vocabulary))
+                    let named = name.map(|n| (n, priors));
+                    seen_from_one_side(placed, i, named, || map_walls(&walls, map, vocabulary))
                 })
             };
             // A face seen through range noise is a slab as deep as the noise, which no
@@ -349,9 +353,10 @@ pub fn object_list<'a>(
             let completed_face = fitted.surface.and_then(|surface| {
                 publish(surface).filter(|completed| deepened_face(&surface, completed))
             });
-            completed_face
-                .or_else(|| publish(fitted.points))
-                .map(|b| (i, standing_on_floor(b, name, &walls, map, vocabulary)))
+            completed_face.or_else(|| publish(fitted.points)).map(|b| {
+                let stands = name.is_some_and(|n| priors.stands_on_floor(n));
+                (i, standing_on_floor(b, stands, &walls, map, vocabulary))
+            })
         })
         .collect()
 }
@@ -367,18 +372,18 @@ fn deepened_face(surface: &OrientedBox, completed: &OrientedBox) -> bool {
 /// an object's face seen from one side ([`amodal`]); as it is without a name, a depth or a
 /// viewpoint. Objects do not go through walls: with a wall closer behind the face than the
 /// typical depth, the object fills the space back to it, and with one closer than any object of
-/// the name is deep ([`amodal::SMALLEST_DEPTH_M`]), the face is the object's back (a chair's
+/// the name is deep ([`ClassPriors::smallest_depth`]), the face is the object's back (a chair's
 /// backrest seen over a table, from its seat's side) and the object stands in front of it.
 fn seen_from_one_side<'w>(
     placed: OrientedBox,
     instance: &Instance,
-    name: Option<&str>,
+    named: Option<(&str, &ClassPriors)>,
     walls: impl FnOnce() -> &'w Walls,
 ) -> OrientedBox {
-    let (Some(name), Some(viewpoint)) = (name, instance.viewpoint) else {
+    let (Some((name, priors)), Some(viewpoint)) = (named, instance.viewpoint) else {
         return placed;
     };
-    let Some(depth) = amodal::typical_depth(name) else {
+    let Some(depth) = priors.typical_depth(name) else {
         return placed;
     };
     let completed = amodal::complete_away_from(placed, viewpoint, depth);
@@ -392,23 +397,26 @@ fn seen_from_one_side<'w>(
     let thin = placed.size.x.min(placed.size.y);
     if gap + thin / 2.0 >= depth {
         completed
-    } else if amodal::smallest_depth(name).is_some_and(|smallest| gap + thin / 2.0 < smallest) {
+    } else if priors
+        .smallest_depth(name)
+        .is_some_and(|smallest| gap + thin / 2.0 < smallest)
+    {
         amodal::complete_toward(placed, viewpoint, depth)
     } else {
         amodal::complete_away_from(placed, viewpoint, gap + thin / 2.0)
     }
 }
 
-/// `placed` extended down to the map's floor when the instance's best `name` is one of objects
-/// that stand there and the box floats ([`amodal::down_to_floor`]); as it is otherwise.
+/// `placed` extended down to the map's floor when the instance's best name `stands` there (its
+/// class prior) and the box floats ([`amodal::down_to_floor`]); as it is otherwise.
 fn standing_on_floor(
     placed: OrientedBox,
-    name: Option<&str>,
+    stands: bool,
     walls: &std::cell::OnceCell<Walls>,
     map: &SceneMap,
     vocabulary: Option<&Vocabulary>,
 ) -> OrientedBox {
-    if !name.is_some_and(amodal::stands_on_floor) {
+    if !stands {
         return placed;
     }
     match map_walls(walls, map, vocabulary).floor() {
@@ -578,6 +586,7 @@ mod tests {
                 vec![0.0, 0.0, 1.0],
             ],
             temperature: 0.05,
+            priors: crate::group::semantics::ClassPriors::builtin(),
         };
         let sigma = 0.06;
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
@@ -661,7 +670,8 @@ mod tests {
         let complete = |y: f32| {
             let instance = backrest(y);
             let face = instance.oriented_box();
-            seen_from_one_side(face, &instance, Some("chair"), || &walls)
+            let priors = ClassPriors::builtin();
+            seen_from_one_side(face, &instance, Some(("chair", &priors)), || &walls)
         };
         // 1.5 m out in the room: the chair lies behind its face, 0.45 m deep.
         let (near, far) = extent_y(&complete(1.5));
@@ -686,7 +696,12 @@ mod tests {
         let instance = backrest(0.3);
         let face = instance.oriented_box();
         assert_eq!(
-            seen_from_one_side(face, &instance, Some("lamp"), || &walls),
+            seen_from_one_side(
+                face,
+                &instance,
+                Some(("lamp", &ClassPriors::builtin())),
+                || &walls
+            ),
             face
         );
     }

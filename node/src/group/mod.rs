@@ -25,6 +25,7 @@ pub mod blobs;
 pub mod cleaning;
 pub mod hdbscan;
 pub mod semantics;
+pub mod vocabulary;
 
 use hdbscan::{Clustering, HdbscanError, HdbscanParams};
 

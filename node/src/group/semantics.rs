@@ -19,52 +19,20 @@ pub struct SemanticsSection {
     /// Phrases instances are named with (ObjectHypothesis class_id), embedded by the text encoder;
     /// any words work. `other` catches walls, floor and unnamed things.
     pub vocabulary: Vec<String>,
+    /// A vocabulary file (`node/data/default_vocabulary.yaml` shows the format) whose classes give
+    /// each phrase of `vocabulary` the priors the map may use for its objects (depth, size,
+    /// standing on the floor); a phrase it does not list gets none. Unset: the built-in default.
+    pub vocabulary_file: Option<std::path::PathBuf>,
     /// τ of the softmax over the vocabulary's cosines that gives hypothesis scores.
     pub temperature: f32,
     /// Hypotheses per instance, best first.
     pub hypotheses: usize,
 }
 
-/// What walls, floor and anything unnamed are called (the semantic model's explicit `other` class).
-pub const OTHER_PHRASE: &str = "other";
+pub use super::vocabulary::{
+    default_vocabulary, ClassPriors, VocabularyFile, DEFAULT_VOCABULARY_YAML, OTHER_PHRASE,
+};
 
-/// The default vocabulary file: the object classes the shipped semantic model was trained on (the
-/// simulator's, ScanNet names) and what everything else is called. Generated from the simulator
-/// by `groupforward sim vocabulary`; the harness's tests keep the two in sync.
-pub const DEFAULT_VOCABULARY_YAML: &str = include_str!("../../data/default_vocabulary.yaml");
-
-/// A vocabulary file: its classes in order ([`OTHER_PHRASE`] is not one: the node adds it).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct VocabularyFile {
-    pub classes: Vec<VocabularyClass>,
-}
-
-/// One class of a vocabulary file.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct VocabularyClass {
-    pub name: String,
-}
-
-impl VocabularyFile {
-    /// The phrases instances are named with: the classes' names, then [`OTHER_PHRASE`].
-    pub fn phrases(&self) -> Vec<String> {
-        self.classes
-            .iter()
-            .map(|c| c.name.clone())
-            .chain([OTHER_PHRASE.to_owned()])
-            .collect()
-    }
-}
-
-/// The default vocabulary's phrases ([`DEFAULT_VOCABULARY_YAML`]).
-pub fn default_vocabulary() -> Vec<String> {
-    // The file is compiled in and a unit test parses it: it cannot fail at run time.
-    serde_yaml_ng::from_str::<VocabularyFile>(DEFAULT_VOCABULARY_YAML)
-        .map(|file| file.phrases())
-        .unwrap_or_else(|e| panic!("the embedded default vocabulary does not parse: {e}"))
-}
 pub const DEFAULT_SEMANTIC_TEMPERATURE: f32 = 0.05;
 pub const DEFAULT_HYPOTHESES: usize = 3;
 
@@ -76,10 +44,18 @@ pub const DEFAULT_HYPOTHESES: usize = 3;
 pub const MIN_LISTED_GAUSSIANS: usize = 60;
 pub const CONFIDENT_NAME: f32 = 0.7;
 
+impl SemanticsSection {
+    /// The vocabulary file's priors ([`SemanticsSection::vocabulary_file`], else the built-in).
+    pub fn class_priors(&self) -> Result<ClassPriors, super::vocabulary::VocabularyError> {
+        super::vocabulary::load_vocabulary_file(self.vocabulary_file.as_deref()).map(|f| f.priors())
+    }
+}
+
 impl Default for SemanticsSection {
     fn default() -> Self {
         Self {
             vocabulary: default_vocabulary(),
+            vocabulary_file: None,
             temperature: DEFAULT_SEMANTIC_TEMPERATURE,
             hypotheses: DEFAULT_HYPOTHESES,
         }
@@ -270,6 +246,9 @@ pub struct Vocabulary {
     pub phrases: Vec<String>,
     pub embeddings: Vec<Vec<f32>>,
     pub temperature: f32,
+    /// What the map may assume of the objects each phrase names (none for a phrase the
+    /// vocabulary file does not list).
+    pub priors: ClassPriors,
 }
 
 impl Vocabulary {
@@ -366,6 +345,11 @@ impl<'a> KindMemo<'a> {
         alike_kinds(self.best_phrase(a), self.best_phrase(b))
     }
 
+    /// The vocabulary's class priors.
+    pub fn priors(&self) -> &ClassPriors {
+        &self.vocabulary.priors
+    }
+
     /// [`Vocabulary::best_phrase`], remembered.
     pub fn best_phrase(&self, prototype: &[f32]) -> Option<String> {
         let key: Vec<u32> = prototype.iter().map(|v| v.to_bits()).collect();
@@ -388,25 +372,4 @@ pub fn softmax(values: &[f32], temperature: f32) -> Vec<f32> {
         .collect();
     let total: f32 = weights.iter().sum();
     weights.iter().map(|w| w / total).collect()
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn the_default_vocabulary_file_parses_to_named_classes_and_other_last() {
-        let phrases = default_vocabulary();
-        assert!(phrases.len() > 1);
-        assert_eq!(phrases.last().map(String::as_str), Some(OTHER_PHRASE));
-        assert!(phrases[..phrases.len() - 1]
-            .iter()
-            .all(|p| !p.trim().is_empty() && p != OTHER_PHRASE));
-    }
-
-    #[test]
-    fn a_vocabulary_file_with_an_unknown_field_is_refused() {
-        let text = "classes:\n  - name: whiteboard\n    colour: white\n";
-        assert!(serde_yaml_ng::from_str::<VocabularyFile>(text).is_err());
-    }
 }

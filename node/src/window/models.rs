@@ -5,7 +5,6 @@
 use super::features::FeatureCache;
 use super::{pass_with_cache, WindowError, WindowOutput};
 use crate::frame::{SyncedFrame, WindowInstance, WindowView};
-use crate::graph::amodal::largest_side;
 use crate::graph::{FusionReport, GraphError, Kinds, SceneMap};
 use crate::group::semantics::{KindMemo, SemanticsSection, Vocabulary};
 use crate::group::GroupingParams;
@@ -70,10 +69,14 @@ impl WindowModels {
                         .map(|phrase| encoder.embed(phrase))
                         .collect::<crate::model::Result<Vec<_>>>()?;
                     text_encoder = Some(encoder);
+                    let priors = semantics
+                        .class_priors()
+                        .map_err(|e| ModelError::Input(e.to_string()))?;
                     Ok(Vocabulary {
                         phrases: semantics.vocabulary.clone(),
                         embeddings,
                         temperature: semantics.temperature,
+                        priors,
                     })
                 });
             embedded
@@ -136,7 +139,7 @@ impl WindowModels {
     }
 }
 
-/// The vocabulary as fusion asks it: kinds by best name, sizes by [`largest_side`].
+/// The vocabulary as fusion asks it: kinds by best name, sizes by the name's largest side.
 impl Kinds for KindMemo<'_> {
     fn same_kind(&self, a: &[f32], b: &[f32]) -> bool {
         KindMemo::same_kind(self, a, b)
@@ -144,6 +147,6 @@ impl Kinds for KindMemo<'_> {
 
     fn largest_side(&self, prototype: &[f32]) -> Option<f64> {
         self.best_phrase(prototype)
-            .and_then(|name| largest_side(&name))
+            .and_then(|name| self.priors().largest_side(&name))
     }
 }

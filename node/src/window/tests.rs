@@ -134,6 +134,7 @@ fn each_point_takes_the_class_of_the_feature_pixel_it_falls_in() {
         phrases: vec!["chair".into(), "table".into()],
         embeddings: vec![vec![1.0, 0.0], vec![0.0, 1.0]],
         temperature: 0.05,
+        priors: crate::group::semantics::ClassPriors::builtin(),
     };
     let named = KeyframeFeatures::named(features.clone(), Some(&vocabulary));
     let classes = point_classes(&[named], &[0, 1, 2, 7, 99], (4, 2));
@@ -171,6 +172,7 @@ fn feature_classes_are_each_pixels_best_phrase_by_cosine() {
         phrases: (0..embeddings.len()).map(|k| format!("p{k}")).collect(),
         embeddings: embeddings.clone(),
         temperature: 0.05,
+        priors: crate::group::semantics::ClassPriors::builtin(),
     };
     let classes = feature_classes(&f, &vocabulary);
     assert_eq!(classes.len(), plane);

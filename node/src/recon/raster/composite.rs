@@ -1,16 +1,8 @@
 //! Compositing: front to back over one tile, per pixel exactly the loop of 3DGS, stopping when
 //! transmittance would fall below [`TRANSMITTANCE_MIN`].
 
-use super::project::Splat;
+use super::project::{Splat, TileBounds};
 use super::{ALPHA_MAX, ALPHA_MIN, TRANSMITTANCE_MIN};
-
-#[derive(Debug)]
-pub(super) struct TileBounds {
-    pub(super) x0: usize,
-    pub(super) y0: usize,
-    pub(super) x1: usize,
-    pub(super) y1: usize,
-}
 
 #[derive(Debug)]
 pub(super) struct TileOutput {

@@ -4,11 +4,19 @@
 use glam::{DMat3, DVec3};
 use rayon::prelude::*;
 
-use super::composite::TileBounds;
 use super::{RasterError, RasterSettings, Result, ALPHA_MIN, FOOTPRINT_MARGIN, JACOBIAN_FOV_LIMIT};
 use crate::recon::camera::Camera;
 use crate::recon::gaussians::{safe_rotation, Gaussians};
 use crate::recon::Rigid;
+
+/// The pixels of one tile: columns `x0..x1`, rows `y0..y1`.
+#[derive(Debug)]
+pub(super) struct TileBounds {
+    pub(super) x0: usize,
+    pub(super) y0: usize,
+    pub(super) x1: usize,
+    pub(super) y1: usize,
+}
 
 /// A Gaussian in screen space.
 #[derive(Debug, Clone, Copy)]
