@@ -28,8 +28,9 @@ struct ExpressionLine {
     #[serde(alias = "expression")]
     text: String,
     targets: Vec<u16>,
+    /// One of the benchmark's relation labels, or a user's own (scored as its own group).
     #[serde(default)]
-    relation: Option<Relation>,
+    relation: Option<String>,
     #[serde(default)]
     anchors: Vec<u16>,
     #[serde(default)]
@@ -38,8 +39,14 @@ struct ExpressionLine {
     view: Option<ViewPose>,
 }
 
-/// (scene, expression, whether the line named its relation).
-fn load_expressions(path: &Path) -> Result<Vec<(String, Expression, bool)>> {
+/// A relation label the benchmark knows, if `label` is one.
+fn known_relation(label: &str) -> Option<Relation> {
+    serde_json::from_value(serde_json::Value::String(label.to_owned())).ok()
+}
+
+/// (scene, expression, the group it is scored in when not its relation's: `unlabelled` for a
+/// line without a relation, the line's own label for one the benchmark does not know).
+fn load_expressions(path: &Path) -> Result<Vec<(String, Expression, Option<String>)>> {
     let text =
         std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
     text.lines()
@@ -55,7 +62,16 @@ fn load_expressions(path: &Path) -> Result<Vec<(String, Expression, bool)>> {
             })?;
             let mut targets = line.targets;
             targets.sort_unstable();
-            let relation = line.relation.unwrap_or(Relation::Class);
+            let relation = line
+                .relation
+                .as_deref()
+                .and_then(known_relation)
+                .unwrap_or(Relation::Class);
+            let group = match line.relation {
+                None => Some("unlabelled".to_owned()),
+                Some(label) if known_relation(&label).is_none() => Some(label),
+                Some(_) => None,
+            };
             let expression = Expression {
                 text: line.text,
                 relation,
@@ -67,7 +83,7 @@ fn load_expressions(path: &Path) -> Result<Vec<(String, Expression, bool)>> {
                 view_dependent: line.view.is_some() || relation.view_dependent(),
                 view: line.view,
             };
-            Ok((line.scene, expression, line.relation.is_some()))
+            Ok((line.scene, expression, group))
         })
         .collect()
 }
@@ -173,15 +189,15 @@ pub fn eval_refer(
         };
         let mut asked_records = ask_scene(&file.name, run.map, &referrer, truth, &asked);
         if let Some(lines) = &given {
-            // A user's expression without a relation is scored in a group of its own.
-            let named: Vec<bool> = lines
+            // A user's expression without a relation, or with a label of their own, is scored in
+            // a group of its own.
+            let groups = lines
                 .iter()
                 .filter(|(scene, _, _)| *scene == file.name)
-                .map(|(_, _, named)| *named)
-                .collect();
-            for (record, named) in asked_records.iter_mut().zip(named) {
-                if !named {
-                    record.relation = "unlabelled".into();
+                .map(|(_, _, group)| group);
+            for (record, group) in asked_records.iter_mut().zip(groups) {
+                if let Some(group) = group {
+                    record.relation.clone_from(group);
                 }
             }
         }
@@ -316,4 +332,37 @@ fn write_outputs(records: &[ReferRecord], out: &Path) -> Result<()> {
         out.display()
     );
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_label_the_benchmark_does_not_know_is_its_own_group_not_a_refused_file() {
+        let dir = tempfile::tempdir().expect("a temporary directory");
+        let path = dir.path().join("mine.jsonl");
+        std::fs::write(
+            &path,
+            concat!(
+                r#"{"scene": "s", "text": "the chair closest to the door", "targets": [3], "relation": "closest"}"#,
+                "\n",
+                r#"{"scene": "s", "text": "the chair", "targets": [2, 1]}"#,
+                "\n\n",
+                r#"{"scene": "s", "text": "the chair by the window", "targets": [1], "relation": "by_window"}"#,
+                "\n",
+            ),
+        )
+        .expect("write");
+        let lines = load_expressions(&path).expect("the file loads");
+        let groups: Vec<Option<&str>> = lines.iter().map(|l| l.2.as_deref()).collect();
+        assert_eq!(groups, [None, Some("unlabelled"), Some("by_window")]);
+        assert_eq!(lines[0].1.relation, Relation::Closest);
+        assert_eq!(lines[1].1.targets, [1, 2]);
+        assert_eq!(lines[2].1.relation, Relation::Class);
+        // A line that is no expression record is refused, naming its line.
+        std::fs::write(&path, "{\"scene\": \"s\", \"text\": \"the chair\"}\n").expect("write");
+        let message = format!("{:#}", load_expressions(&path).unwrap_err());
+        assert!(message.contains("mine.jsonl:1"), "{message}");
+    }
 }

@@ -55,6 +55,10 @@ pub struct VocabularyClass {
     /// Its objects stand on the floor: a box seen floating above it reaches down to it.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub stands_on_floor: bool,
+    /// What one does with its objects ("sit on", "wash hands"): a query for "the thing you can
+    /// X" finds the class whose functions (or name) the text encoder puts nearest X.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub functions: Vec<String>,
 }
 
 impl VocabularyFile {
@@ -69,6 +73,9 @@ impl VocabularyFile {
             };
             if class.name.trim().is_empty() || class.name == OTHER_PHRASE {
                 return Err(invalid("a class needs a name other than `other`"));
+            }
+            if class.functions.iter().any(|f| f.trim().is_empty()) {
+                return Err(invalid("a function must not be empty"));
             }
             let lengths = [
                 class.typical_depth_m,
@@ -165,6 +172,11 @@ impl ClassPriors {
     pub fn stands_on_floor(&self, name: &str) -> bool {
         self.class(name).is_some_and(|c| c.stands_on_floor)
     }
+
+    /// What one does with `name`'s objects (none when unknown).
+    pub fn functions(&self, name: &str) -> &[String] {
+        self.class(name).map_or(&[], |c| c.functions.as_slice())
+    }
 }
 
 /// Where a node's vocabulary file comes from: a path, or the built-in default.
@@ -220,7 +232,7 @@ mod tests {
 
     #[test]
     fn classes_without_priors_have_none_and_unknown_names_neither() {
-        let text = "classes:\n  - name: whiteboard\n  - name: coat rack\n    stands_on_floor: true\n    largest_side_m: 0.6\n";
+        let text = "classes:\n  - name: whiteboard\n    functions: [write on]\n  - name: coat rack\n    stands_on_floor: true\n    largest_side_m: 0.6\n";
         let priors = VocabularyFile::parse(text, "mine.yaml")
             .map(|f| f.priors())
             .unwrap_or_else(|e| panic!("{e}"));
@@ -229,6 +241,8 @@ mod tests {
         assert!(priors.stands_on_floor("coat rack"));
         assert_eq!(priors.largest_side("coat rack"), Some(0.6));
         assert_eq!(priors.largest_side("fire extinguisher"), None);
+        assert_eq!(priors.functions("whiteboard"), ["write on"]);
+        assert!(priors.functions("coat rack").is_empty());
         assert_eq!(ClassPriors::default().smallest_depth("chair"), None);
     }
 }

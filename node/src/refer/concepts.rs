@@ -19,15 +19,34 @@ pub fn spread(
     embeddings: &[Vec<f32>],
     temperature: f32,
 ) -> Vec<f32> {
+    spread_with_functions(embedding, phrases, embeddings, &[], temperature)
+}
+
+/// [`spread`], where a phrase's cosine is the best of its own and those of what one does with
+/// its objects (`functions[j]`: the embeddings of phrase j's functions; missing: none).
+pub fn spread_with_functions(
+    embedding: &[f32],
+    phrases: &[String],
+    embeddings: &[Vec<f32>],
+    functions: &[Vec<Vec<f32>>],
+    temperature: f32,
+) -> Vec<f32> {
     let cosines: Vec<f32> = phrases
         .iter()
         .zip(embeddings)
-        .map(|(p, e)| {
+        .enumerate()
+        .map(|(j, (p, e))| {
             if p == OTHER_PHRASE {
-                f32::NEG_INFINITY
-            } else {
-                cosine(embedding, e)
+                return f32::NEG_INFINITY;
             }
+            let own = cosine(embedding, e);
+            functions
+                .get(j)
+                .into_iter()
+                .flatten()
+                .map(|f| cosine(embedding, f))
+                .filter(|c| c.is_finite())
+                .fold(own, f32::max)
         })
         .collect();
     if cosines.iter().any(|c| c.is_finite()) {
@@ -51,6 +70,27 @@ impl Concept {
         Self {
             phrase: phrase.to_owned(),
             weights: spread(embedding, &scene.phrases, &scene.embeddings, temperature),
+        }
+    }
+
+    /// A function phrase ("wash hands"): spread over the phrases by the nearer of each phrase and
+    /// what one does with its objects (`functions`: per phrase, its functions' embeddings).
+    pub fn for_function(
+        phrase: &str,
+        embedding: &[f32],
+        scene: &ReferScene,
+        functions: &[Vec<Vec<f32>>],
+        temperature: f32,
+    ) -> Self {
+        Self {
+            phrase: phrase.to_owned(),
+            weights: spread_with_functions(
+                embedding,
+                &scene.phrases,
+                &scene.embeddings,
+                functions,
+                temperature,
+            ),
         }
     }
 
@@ -128,5 +168,25 @@ mod tests {
         };
         let c = Concept::new("wall", &[1.0], &only_other, 1e-9);
         assert_eq!(c.weights, [0.0]);
+    }
+
+    #[test]
+    fn a_function_phrase_finds_the_class_whose_function_it_names() {
+        let scene = scene();
+        // "lie down on" reads closer to the chair's name than to the sofa's, but the sofa lists
+        // it among its functions; zero and missing function embeddings change nothing.
+        let lie_down = [0.8, 0.6, 0.0];
+        let by_name = Concept::new("lie down on", &lie_down, &scene, 0.05);
+        assert_eq!(by_name.nearest_phrase(&scene).map(|p| p.0), Some("chair"));
+        let functions = vec![vec![vec![0.0, 0.0, 0.0]], vec![vec![0.8, 0.6, 0.0]]];
+        let by_function = Concept::for_function("lie down on", &lie_down, &scene, &functions, 0.05);
+        assert_eq!(
+            by_function.nearest_phrase(&scene).map(|p| p.0),
+            Some("sofa")
+        );
+        assert!(by_function.weights.iter().all(|w| w.is_finite()));
+        assert_eq!(by_function.weights[2], 0.0);
+        let none = Concept::for_function("lie down on", &lie_down, &scene, &[], 0.05);
+        assert_eq!(none, by_name);
     }
 }

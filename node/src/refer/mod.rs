@@ -141,6 +141,35 @@ pub fn answer(
     answer_query(scene, embed, parse(&request.expression)?, request, section)
 }
 
+/// The concept of a function phrase ("wash hands"): the vocabulary's phrases scored by the nearer
+/// of each one and what one does with its objects (the vocabulary file's `functions`, embedded by
+/// the same text encoder; its cache keeps them after the first query).
+fn function_concept(
+    scene: &ReferScene,
+    embed: &mut dyn Embed,
+    phrase: &str,
+    temperature: f32,
+) -> Result<Concept, ReferError> {
+    let embedding = embed.embed(phrase).map_err(ReferError::Embed)?;
+    let functions = scene
+        .functions
+        .iter()
+        .map(|of_phrase| {
+            of_phrase
+                .iter()
+                .map(|f| embed.embed(f).map_err(ReferError::Embed))
+                .collect::<Result<Vec<_>, _>>()
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok(Concept::for_function(
+        phrase,
+        &embedding,
+        scene,
+        &functions,
+        temperature,
+    ))
+}
+
 /// Answer an already parsed `query` (the rule parser's or a validated LLM decomposition).
 pub fn answer_query(
     scene: &ReferScene,
@@ -155,6 +184,17 @@ pub fn answer_query(
     if scene.phrases.is_empty() || scene.nodes.iter().all(|n| n.names.is_empty()) {
         return Err(ReferError::NoSemantics);
     }
+    let target = if query.function {
+        function_concept(scene, embed, &query.target, section.concept_temperature)?
+    } else {
+        let embedding = embed.embed(&query.target).map_err(ReferError::Embed)?;
+        Concept::new(
+            &query.target,
+            &embedding,
+            scene,
+            section.concept_temperature,
+        )
+    };
     let mut concept = |phrase: &str| -> Result<Concept, ReferError> {
         let embedding = embed.embed(phrase).map_err(ReferError::Embed)?;
         Ok(Concept::new(
@@ -164,7 +204,6 @@ pub fn answer_query(
             section.concept_temperature,
         ))
     };
-    let target = concept(&query.target)?;
     let anchors = query
         .anchors
         .iter()

@@ -59,6 +59,8 @@ pub struct ReferScene {
     /// The vocabulary's phrases and text embeddings (`names` is over these).
     pub phrases: Vec<String>,
     pub embeddings: Vec<Vec<f32>>,
+    /// Per phrase, what one does with its objects (the vocabulary file's `functions`).
+    pub functions: Vec<Vec<String>>,
     /// Newest first, with the map's depth rendered in each.
     pub keyframes: Vec<Keyframe>,
     pub depths: Vec<Vec<f32>>,
@@ -151,6 +153,14 @@ impl ReferScene {
             nodes,
             phrases: vocabulary.map(|v| v.phrases.clone()).unwrap_or_default(),
             embeddings: vocabulary.map(|v| v.embeddings.clone()).unwrap_or_default(),
+            functions: vocabulary
+                .map(|v| {
+                    v.phrases
+                        .iter()
+                        .map(|p| v.priors.functions(p).to_vec())
+                        .collect()
+                })
+                .unwrap_or_default(),
             keyframes: map
                 .keyframes
                 .iter()
