@@ -29,7 +29,7 @@ use sha2::{Digest, Sha256};
 use crate::sim::{load_scene, progress_bar};
 
 /// Objects seen by fewer pixels over the whole trajectory are not scored (counted apart).
-const MIN_OBJECT_PIXELS: u64 = 1000;
+pub(crate) const MIN_OBJECT_PIXELS: u64 = 1000;
 /// An object counts as seen by a window with this many pixels in its views.
 const MIN_WINDOW_PIXELS: u64 = 200;
 

@@ -10,10 +10,13 @@ use anyhow::{Context, Result};
 use groupforward::window::WindowModels;
 use groupforward_harness::eval::baseline::FeatureVoxels;
 use groupforward_harness::eval::refer::{
-    ask_scene, held_out_views, ReferRecord, Referrer, SceneTruth,
+    ask_scene, held_out_views, ReferRecord, Referrer, SceneTruth, Truth,
 };
 use groupforward_harness::eval::run::{record_scene, replay_scene_with};
-use groupforward_sim::referring::{scene_expressions, Expression, Relation, ViewPose};
+use groupforward_harness::eval::score::TruthObject;
+use groupforward_sim::referring::{
+    observed_expressions, scene_expressions, Expression, Relation, ViewPose,
+};
 use groupforward_sim::scene::SceneFile;
 use groupforward_sim::simulation::Simulation;
 
@@ -136,6 +139,29 @@ fn group(records: &[&ReferRecord]) -> Group {
     }
 }
 
+/// The benchmark's expressions of `file` by truth: decided over the objects the run observed (at
+/// least [`crate::eval::MIN_OBJECT_PIXELS`] over the trajectory, as `eval map` scores them), the
+/// refusal tests for objects never observed, and the old truth over every object.
+fn benchmark_expressions(
+    file: &SceneFile,
+    objects: &[TruthObject],
+) -> Result<Vec<(Expression, Truth)>> {
+    let observed: Vec<u16> = objects
+        .iter()
+        .filter(|o| o.pixels >= crate::eval::MIN_OBJECT_PIXELS)
+        .map(|o| o.id)
+        .collect();
+    let failed = |e: groupforward_sim::scene::SceneError| anyhow::anyhow!("{}: {e}", file.name);
+    let (answerable, refusals) = observed_expressions(file, &observed).map_err(failed)?;
+    let every = scene_expressions(file).map_err(failed)?;
+    Ok(answerable
+        .into_iter()
+        .map(|e| (e, Truth::Observed))
+        .chain(refusals.into_iter().map(|e| (e, Truth::Refusal)))
+        .chain(every.into_iter().map(|e| (e, Truth::EveryObject)))
+        .collect())
+}
+
 pub fn eval_refer(
     files: &[SceneFile],
     config: &Config,
@@ -153,14 +179,6 @@ pub fn eval_refer(
     let mut baseline_rows = Vec::new();
     for file in files {
         bar.set_message(file.name.clone());
-        let asked: Vec<Expression> = match &given {
-            Some(lines) => lines
-                .iter()
-                .filter(|(scene, _, _)| *scene == file.name)
-                .map(|(_, e, _)| e.clone())
-                .collect(),
-            None => scene_expressions(file).map_err(|e| anyhow::anyhow!("{}: {e}", file.name))?,
-        };
         let mut voxels = FeatureVoxels::default();
         let recorded = record_scene(file).with_context(|| format!("scene {}", file.name))?;
         let run =
@@ -183,6 +201,15 @@ pub fn eval_refer(
             encoder: encoder.clone(),
             section: config.refer.clone(),
         };
+        let asked: Vec<(Expression, Truth)> = match &given {
+            // A user's expressions are scored by the targets they give.
+            Some(lines) => lines
+                .iter()
+                .filter(|(scene, _, _)| *scene == file.name)
+                .map(|(_, e, _)| (e.clone(), Truth::Observed))
+                .collect(),
+            None => benchmark_expressions(file, &run.objects)?,
+        };
         let truth = SceneTruth {
             objects: &run.objects,
             views: &views,
@@ -203,12 +230,13 @@ pub fn eval_refer(
         }
         if let (true, Some(vocabulary), Some(encoder)) = (baseline, &models.vocabulary, &encoder) {
             let named = voxels.named(vocabulary);
+            let observed: Vec<ReferRecord> = asked_records
+                .iter()
+                .filter(|r| r.truth == Truth::Observed)
+                .cloned()
+                .collect();
             baseline_rows.extend(crate::eval_baseline::baseline_rows(
-                &asked_records,
-                &objects,
-                &named,
-                vocabulary,
-                encoder,
+                &observed, &objects, &named, vocabulary, encoder,
             ));
         }
         records.extend(asked_records);
@@ -226,14 +254,15 @@ fn write_outputs(records: &[ReferRecord], out: &Path) -> Result<()> {
     let mut csv = std::io::BufWriter::new(std::fs::File::create(out.join("expressions.csv"))?);
     writeln!(
         csv,
-        "scene,expression,relation,view_dependent,hard,targets,answered,correct,topk_hit,targets_in_map,anchors_in_map,iou,mask_iou,millis,reasoner,message"
+        "scene,truth,expression,relation,view_dependent,hard,targets,answered,correct,topk_hit,targets_in_map,anchors_in_map,iou,mask_iou,millis,reasoner,message"
     )?;
     let ids = |v: &[u16]| v.iter().map(u16::to_string).collect::<Vec<_>>().join(" ");
     for r in records {
         writeln!(
             csv,
-            "{},\"{}\",{},{},{},{},{},{},{},{},{},{:.4},{},{:.3},{},\"{}\"",
+            "{},{},\"{}\",{},{},{},{},{},{},{},{},{},{:.4},{},{:.3},{},\"{}\"",
             r.scene,
+            r.truth.name(),
             r.expression.replace('"', "'"),
             r.relation,
             r.view_dependent,
@@ -251,13 +280,21 @@ fn write_outputs(records: &[ReferRecord], out: &Path) -> Result<()> {
             r.message.replace('"', "'"),
         )?;
     }
-    let all: Vec<&ReferRecord> = records.iter().collect();
+    // The headline: what an observer can be asked (truth over the observed objects, and refusals
+    // for the rest); the old truth over every object is its own row.
+    let all: Vec<&ReferRecord> = records
+        .iter()
+        .filter(|r| r.truth != Truth::EveryObject)
+        .collect();
+    let of_truth = |truth: Truth| -> Vec<&ReferRecord> {
+        records.iter().filter(|r| r.truth == truth).collect()
+    };
     let mut by_relation: BTreeMap<&str, Vec<&ReferRecord>> = BTreeMap::new();
-    for r in records {
+    for r in &all {
         by_relation.entry(r.relation.as_str()).or_default().push(r);
     }
     let split = |f: &dyn Fn(&ReferRecord) -> bool| -> Vec<&ReferRecord> {
-        records.iter().filter(|r| f(r)).collect()
+        all.iter().copied().filter(|r| f(r)).collect()
     };
     let mut millis: Vec<f64> = records.iter().map(|r| r.millis).collect();
     millis.sort_by(f64::total_cmp);
@@ -268,8 +305,25 @@ fn write_outputs(records: &[ReferRecord], out: &Path) -> Result<()> {
             .unwrap_or(0.0)
     };
     let total = group(&all);
+    let (seen, refusals, every) = (
+        group(&of_truth(Truth::Observed)),
+        group(&of_truth(Truth::Refusal)),
+        group(&of_truth(Truth::EveryObject)),
+    );
     let rows: Vec<(String, Group)> = [
         ("**all**".to_owned(), group(&all)),
+        (
+            "targets observed".to_owned(),
+            group(&of_truth(Truth::Observed)),
+        ),
+        (
+            "never observed (right: a refusal)".to_owned(),
+            group(&of_truth(Truth::Refusal)),
+        ),
+        (
+            "every object (old truth)".to_owned(),
+            group(&of_truth(Truth::EveryObject)),
+        ),
         ("easy".to_owned(), group(&split(&|r| !r.hard))),
         ("hard".to_owned(), group(&split(&|r| r.hard))),
         (
@@ -298,7 +352,10 @@ fn write_outputs(records: &[ReferRecord], out: &Path) -> Result<()> {
         "referring_miou": total.referring_miou,
         "query_p50_ms": percentile(0.5),
         "query_p99_ms": percentile(0.99),
-        "queries": records.len(),
+        "queries": all.len(),
+        "targets_observed": seen,
+        "refusals": refusals,
+        "every_object": every,
         "groups": rows.iter().map(|(name, g)| serde_json::json!({"group": name, "scores": g})).collect::<Vec<_>>(),
     });
     std::fs::write(

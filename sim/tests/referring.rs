@@ -270,3 +270,45 @@ fn generation_is_deterministic() {
         scene_expressions(&file).unwrap()
     );
 }
+
+#[test]
+fn an_observer_s_benchmark_decides_over_what_it_saw_and_asks_for_refusals_of_the_rest() {
+    use groupforward_sim::referring::observed_expressions;
+    let file = generate(Split::Benchmark, 3).unwrap();
+    let scene = file.build().unwrap();
+    let every: Vec<u16> = scene.objects.iter().map(|o| o.instance_id).collect();
+    // Everything observed: the benchmark as it was, and nothing to refuse.
+    let (answerable, refusals) = observed_expressions(&file, &every).unwrap();
+    assert_eq!(answerable, scene_expressions(&file).unwrap());
+    assert!(refusals.is_empty());
+    // One object never observed, the only one of its class: no answerable expression targets it,
+    // and asking for it is a refusal test.
+    let hidden = scene
+        .objects
+        .iter()
+        .find(|o| {
+            scene
+                .objects
+                .iter()
+                .filter(|p| p.class_id == o.class_id)
+                .count()
+                == 1
+        })
+        .unwrap()
+        .clone();
+    let observed: Vec<u16> = every
+        .iter()
+        .copied()
+        .filter(|id| *id != hidden.instance_id)
+        .collect();
+    let (answerable, refusals) = observed_expressions(&file, &observed).unwrap();
+    assert!(answerable
+        .iter()
+        .all(|e| !e.targets.contains(&hidden.instance_id)));
+    assert!(!refusals.is_empty());
+    assert!(refusals
+        .iter()
+        .all(|e| e.targets.iter().all(|t| *t == hidden.instance_id)));
+    let texts: Vec<&str> = answerable.iter().map(|e| e.text.as_str()).collect();
+    assert!(refusals.iter().all(|e| !texts.contains(&e.text.as_str())));
+}

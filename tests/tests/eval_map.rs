@@ -11,7 +11,7 @@ use groupforward::config::Config;
 use groupforward::graph::persist;
 use groupforward::model::ModelsSection;
 use groupforward::window::WindowModels;
-use groupforward_harness::eval::refer::{ask_scene, held_out_views, Referrer, SceneTruth};
+use groupforward_harness::eval::refer::{ask_scene, held_out_views, Referrer, SceneTruth, Truth};
 use groupforward_harness::eval::run::run_scene;
 use groupforward_harness::eval::score::{score_map, score_windows, Outcome};
 use groupforward_sim::scene::SceneFile;
@@ -111,7 +111,11 @@ fn the_demo_scene_s_map_finds_its_objects_and_answers_its_referring_expressions(
             .map(|e| std::sync::Arc::new(std::sync::Mutex::new(e))),
         section: config.refer.clone(),
     };
-    let expressions = groupforward_sim::referring::scene_expressions(&scene).unwrap();
+    let expressions: Vec<_> = groupforward_sim::referring::scene_expressions(&scene)
+        .unwrap()
+        .into_iter()
+        .map(|e| (e, Truth::EveryObject))
+        .collect();
     let truth = SceneTruth {
         objects: &run.objects,
         views: &views,

@@ -119,10 +119,34 @@ pub fn referring_iou(answer: &[&Gaussians], targets: &[u16], views: &[HeldOutVie
     (!ious.is_empty()).then(|| ious.iter().sum::<f64>() / ious.len() as f64)
 }
 
+/// Which truth an expression is scored by.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Truth {
+    /// Decided over the objects the trajectory observed: right when the answer is its targets.
+    Observed,
+    /// Its targets were never observed: right only when the answer is a refusal that says why.
+    Refusal,
+    /// Decided over every object of the scene, seen or not (the benchmark before refusals).
+    EveryObject,
+}
+
+impl Truth {
+    pub fn name(self) -> &'static str {
+        match self {
+            Truth::Observed => "observed",
+            Truth::Refusal => "refusal",
+            Truth::EveryObject => "every_object",
+        }
+    }
+}
+
 /// One expression, asked and scored.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct ReferRecord {
     pub scene: String,
+    /// The truth it was scored by.
+    pub truth: Truth,
     pub expression: String,
     pub relation: String,
     pub view_dependent: bool,
@@ -222,13 +246,18 @@ pub struct SceneTruth<'a> {
     pub views: &'a [HeldOutView],
 }
 
-/// Ask every expression of a scene on its final `map` and score the answers.
+/// Whether `response` refuses with a reason: no instance, and a message saying why.
+fn is_refusal(response: &ReferResponse) -> bool {
+    !response.success && response.instance_ids.is_empty() && !response.message.trim().is_empty()
+}
+
+/// Ask every expression of a scene on its final `map` and score the answers, each by its truth.
 pub fn ask_scene(
     scene: &str,
     map: SceneMap,
     referrer: &Referrer,
     truth: SceneTruth<'_>,
-    expressions: &[Expression],
+    expressions: &[(Expression, Truth)],
 ) -> Vec<ReferRecord> {
     let SceneTruth { objects, views } = truth;
     let mut shared = Shared {
@@ -252,7 +281,7 @@ pub fn ask_scene(
     };
     expressions
         .iter()
-        .map(|e| {
+        .map(|(e, kind)| {
             let request = request_for(e);
             let started = Instant::now();
             let response: ReferResponse = cdr::encode(&request)
@@ -297,8 +326,13 @@ pub fn ask_scene(
                 ([target], [(id, iou)]) if id == target => *iou,
                 _ => 0.0,
             };
+            let correct = match kind {
+                Truth::Refusal => is_refusal(&response),
+                Truth::Observed | Truth::EveryObject => response.success && answered == e.targets,
+            };
             ReferRecord {
                 scene: scene.into(),
+                truth: *kind,
                 expression: e.text.clone(),
                 relation: serde_json::to_value(e.relation)
                     .ok()
@@ -308,7 +342,7 @@ pub fn ask_scene(
                 hard: e.distractors > 2,
                 distractors: e.distractors,
                 targets: e.targets.clone(),
-                correct: response.success && answered == e.targets,
+                correct,
                 answered,
                 topk_hit: e.targets.iter().all(|t| candidates.contains(t)),
                 targets_in_map: e.targets.iter().all(|t| in_map.contains(t)),
@@ -323,4 +357,35 @@ pub fn ask_scene(
             }
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn only_an_answer_without_instances_that_says_why_is_a_refusal() {
+        let refused = ReferResponse {
+            success: false,
+            message: "no lamp has been seen".into(),
+            ..ReferResponse::default()
+        };
+        assert!(is_refusal(&refused));
+        let silent = ReferResponse {
+            message: "  ".into(),
+            ..refused.clone()
+        };
+        assert!(!is_refusal(&silent));
+        let answered = ReferResponse {
+            success: true,
+            instance_ids: vec!["inst_000001".into()],
+            ..refused.clone()
+        };
+        assert!(!is_refusal(&answered));
+        let failed_with_an_instance = ReferResponse {
+            instance_ids: vec!["inst_000001".into()],
+            ..refused
+        };
+        assert!(!is_refusal(&failed_with_an_instance));
+    }
 }

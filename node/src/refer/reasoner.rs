@@ -35,9 +35,10 @@ pub struct Decision {
 
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum ReasonError {
-    #[error("nothing in the map fits {0:?}")]
+    /// What was asked for and has not been seen ([`unseen`]).
+    #[error("{0}")]
     NoTarget(String),
-    #[error("no {0:?} in the map to relate to")]
+    #[error("no {0} has been seen to relate to")]
     NoAnchor(String),
     #[error("{0} needs a viewpoint and the map has no keyframe yet")]
     NoView(String),
@@ -53,6 +54,16 @@ pub fn fitting(candidates: &[Scored]) -> Vec<Scored> {
         .collect()
 }
 
+/// What a query asks for that nothing in the map fits, as a refusal says it: "no lamp has been
+/// seen", "nothing that one can water has been seen".
+pub fn unseen(query: &Query) -> String {
+    if query.function {
+        format!("nothing that one can {} has been seen", query.target)
+    } else {
+        format!("no {} has been seen", query.target)
+    }
+}
+
 /// Decide among `retrieval`'s candidates.
 pub fn reason(
     scene: &ReferScene,
@@ -63,7 +74,7 @@ pub fn reason(
 ) -> Result<Decision, ReasonError> {
     let fit = fitting(&retrieval.candidates);
     if fit.is_empty() {
-        return Err(ReasonError::NoTarget(query.target.clone()));
+        return Err(ReasonError::NoTarget(unseen(query)));
     }
     if query.view_dependent() && view.is_none() {
         return Err(ReasonError::NoView(query.text.clone()));

@@ -16,7 +16,11 @@ use super::concepts::Concept;
 use super::parse::{Query, Relation, Superlative};
 use super::scene::{ReferNode, ReferScene};
 
-/// Instances below this semantic score never fit a concept, however weak the field.
+/// Instances below this semantic score never fit a concept, however weak the field; nothing
+/// fitting, the answer is a refusal ("no lamp has been seen"). A higher floor refuses more of what
+/// was never seen and more of what the map holds under an unsure name: 0.2 took benchmark 0-9 from
+/// 71.2 to 72.7% right (observed truth with refusal tests) but 7000-7019 from 61.5 to 61.4%
+/// (refusals 82.8 -> 93.8%, seen targets 59.6 -> 58.5%), so it stays.
 pub const MIN_SEMANTIC: f32 = 0.05;
 
 /// Candidates kept for the reasoner.

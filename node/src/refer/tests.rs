@@ -303,3 +303,16 @@ fn an_anchor_the_map_does_not_hold_is_refused_not_stood_in_for() {
         "{got:?}"
     );
 }
+
+#[test]
+fn a_target_the_map_does_not_hold_is_refused_saying_what_was_not_seen() {
+    let mut scene = room();
+    scene.nodes.retain(|n| n.label != "lamp");
+    let got = ask(&scene, "the lamp");
+    assert!(
+        matches!(&got, Err(ReferError::Reason(ReasonError::NoTarget(_)))),
+        "{got:?}"
+    );
+    let message = got.map(|_| ()).unwrap_err().to_string();
+    assert!(message.contains("no lamp has been seen"), "{message}");
+}
