@@ -22,16 +22,21 @@ pub enum Split {
     Train,
     Val,
     Benchmark,
+    /// Arrangements the other splits rarely hold: rows of identical objects side by side,
+    /// chairs lined up at tables, several objects on one surface, objects in corners. A test
+    /// split for the map's neighbours (its own seeds).
+    Layouts,
 }
 
 impl Split {
-    pub const ALL: [Split; 3] = [Split::Train, Split::Val, Split::Benchmark];
+    pub const ALL: [Split; 4] = [Split::Train, Split::Val, Split::Benchmark, Split::Layouts];
 
     pub fn name(self) -> &'static str {
         match self {
             Split::Train => "train",
             Split::Val => "val",
             Split::Benchmark => "benchmark",
+            Split::Layouts => "layouts",
         }
     }
 
@@ -48,6 +53,7 @@ impl Split {
             Split::Train => 0,
             Split::Val => 1,
             Split::Benchmark => 2,
+            Split::Layouts => 3,
         };
         (index < Self::CAPACITY).then(|| base * Self::CAPACITY + index)
     }
@@ -167,16 +173,78 @@ pub fn generate_with(split: Split, index: u64, options: &ProceduralOptions) -> O
         effects_preset: None,
     };
 
+    match split {
+        Split::Layouts => place_rows(&mut file, &mut rng, size),
+        _ => place_floor_objects(&mut file, &mut rng, size),
+    }
+    place_chairs_at_tables(&mut file, &mut rng);
+    place_small_objects(&mut file, &mut rng);
+    place_robot(file, &mut rng, size, options)
+}
+
+/// Where an object of `class` (scaled by `scale`) stands with its back (local ±y, `back`) to wall
+/// `wall` (0: x = 0, 1: x = size, 2: y = 0, 3: y = size), `along` metres along it, 2 cm off it.
+#[derive(Debug, Clone, Copy)]
+struct WallPose {
+    position: [f64; 2],
+    yaw_deg: f64,
+    /// Its extent along the wall.
+    width: f64,
+}
+
+fn wall_pose(
+    class: &library::ObjectClass,
+    back: f64,
+    wall: usize,
+    along: f64,
+    scale: f64,
+    size: [f64; 3],
+) -> WallPose {
+    let normal: [f64; 2] = match wall {
+        0 => [-1.0, 0.0],
+        1 => [1.0, 0.0],
+        2 => [0.0, -1.0],
+        _ => [0.0, 1.0],
+    };
+    // Local (0, back) must point along the wall's outward normal.
+    let yaw = normal[1].atan2(normal[0]) - back * std::f64::consts::FRAC_PI_2;
+    let probe = crate::render::PlacedObject {
+        instance_id: 0,
+        class_id: class.id,
+        position: glam::DVec3::ZERO,
+        yaw,
+        scale,
+        color: class.color,
+        parts: class.parts.clone(),
+        support: None,
+    };
+    let (lo, hi) = probe.bounds();
+    let gap = 0.02;
+    let (position, width) = match wall {
+        0 => ([-lo.x + gap, along], hi.y - lo.y),
+        1 => ([size[0] - hi.x - gap, along], hi.y - lo.y),
+        2 => ([along, -lo.y + gap], hi.x - lo.x),
+        _ => ([along, size[1] - hi.y - gap], hi.x - lo.x),
+    };
+    WallPose {
+        position,
+        yaw_deg: yaw.to_degrees(),
+        width,
+    }
+}
+
+/// Floor objects: a mix of classes where repeats are common, against the walls or anywhere.
+fn place_floor_objects(file: &mut SceneFile, rng: &mut ChaCha8Rng, size: [f64; 3]) {
     // Floor objects: a mix of classes where repeats are common.
     let wanted = rng.random_range(5..=10);
     let mut chosen: Vec<&str> = Vec::new();
     while chosen.len() < wanted {
         let repeat = !chosen.is_empty() && rng.random::<f64>() < 0.4;
         let class = if repeat {
-            chosen.choose(&mut rng).copied().unwrap_or("chair")
+            chosen.choose(rng).copied().unwrap_or("chair")
         } else {
             FLOOR_CLASSES
-                .choose_weighted(&mut rng, |(_, w)| *w)
+                .choose_weighted(rng, |(_, w)| *w)
                 .map(|(c, _)| *c)
                 .unwrap_or("chair")
         };
@@ -191,7 +259,7 @@ pub fn generate_with(split: Split, index: u64, options: &ProceduralOptions) -> O
         let color = match class_colors.get(class_name) {
             Some(c) if rng.random::<bool>() => *c,
             _ => {
-                let c = jitter_color(&mut rng, class.color, 0.12);
+                let c = jitter_color(rng, class.color, 0.12);
                 class_colors.insert(class_name, c);
                 c
             }
@@ -202,33 +270,12 @@ pub fn generate_with(split: Split, index: u64, options: &ProceduralOptions) -> O
                 Some(back) => {
                     // Against one of the four walls, back to it.
                     let wall = rng.random_range(0..4);
-                    let (normal, along): ([f64; 2], f64) = match wall {
-                        0 => ([-1.0, 0.0], rng.random_range(0.0..size[1])),
-                        1 => ([1.0, 0.0], rng.random_range(0.0..size[1])),
-                        2 => ([0.0, -1.0], rng.random_range(0.0..size[0])),
-                        _ => ([0.0, 1.0], rng.random_range(0.0..size[0])),
+                    let along = match wall {
+                        0 | 1 => rng.random_range(0.0..size[1]),
+                        _ => rng.random_range(0.0..size[0]),
                     };
-                    // Local (0, back) must point along the wall's outward normal.
-                    let yaw = normal[1].atan2(normal[0]) - back * std::f64::consts::FRAC_PI_2;
-                    let probe = crate::render::PlacedObject {
-                        instance_id: 0,
-                        class_id: class.id,
-                        position: glam::DVec3::ZERO,
-                        yaw,
-                        scale,
-                        color,
-                        parts: class.parts.clone(),
-                        support: None,
-                    };
-                    let (lo, hi) = probe.bounds();
-                    let gap = 0.02;
-                    let position = match wall {
-                        0 => [-lo.x + gap, along],
-                        1 => [size[0] - hi.x - gap, along],
-                        2 => [along, -lo.y + gap],
-                        _ => [along, size[1] - hi.y - gap],
-                    };
-                    (position, yaw.to_degrees())
+                    let pose = wall_pose(&class, back, wall, along, scale, size);
+                    (pose.position, pose.yaw_deg)
                 }
                 None => (
                     [
@@ -247,19 +294,183 @@ pub fn generate_with(split: Split, index: u64, options: &ProceduralOptions) -> O
                 on: None,
                 surface: 0,
             };
-            if try_add(&mut file, spec) {
+            if try_add(file, spec) {
                 break;
             }
         }
     }
+}
 
+/// Classes that stand in rows along a wall (with their weight) and free-standing ones.
+const WALL_ROW_CLASSES: &[(&str, u32)] = &[
+    ("cabinet", 3),
+    ("desk", 2),
+    ("bookshelf", 2),
+    ("refrigerator", 1),
+];
+const FREE_ROW_CLASSES: &[&str] = &["chair", "box", "trash bin"];
+
+/// The `layouts` split's floor: one to three rows of 2 to 6 identical objects side by side along
+/// walls (touching or a few centimetres apart; a row may start in a corner), a free-standing row
+/// of 2 to 4 chairs, boxes or bins facing one way, and a table with chairs lined up along one
+/// side.
+fn place_rows(file: &mut SceneFile, rng: &mut ChaCha8Rng, size: [f64; 3]) {
+    for _ in 0..rng.random_range(1..=3) {
+        place_wall_row(file, rng, size);
+    }
+    place_free_row(file, rng, size);
+    place_table_with_a_row_of_chairs(file, rng, size);
+}
+
+/// A row of identical objects with their backs to one wall.
+fn place_wall_row(file: &mut SceneFile, rng: &mut ChaCha8Rng, size: [f64; 3]) {
+    let Some(name) = WALL_ROW_CLASSES
+        .choose_weighted(rng, |(_, w)| *w)
+        .map(|(c, _)| *c)
+        .ok()
+    else {
+        return;
+    };
+    let (Some(class), Some(back)) = (library::class(name), wall_back(name)) else {
+        return;
+    };
+    let wall = rng.random_range(0..4);
+    let length = if wall < 2 { size[1] } else { size[0] };
+    let scale = rng.random_range(library::SCALE_RANGE.0..library::SCALE_RANGE.1);
+    let color = jitter_color(rng, class.color, 0.12);
+    let gap = [0.0, 0.01, 0.03, 0.05][rng.random_range(0..4)];
+    let width = wall_pose(&class, back, wall, 0.0, scale, size).width;
+    let fits = ((length - 0.1 + gap) / (width + gap)).floor().max(0.0) as usize;
+    let count = rng.random_range(2..=6).min(fits);
+    let span = count as f64 * width + count.saturating_sub(1) as f64 * gap;
+    // Half the rows start in a corner, against two walls.
+    let start = if rng.random::<bool>() {
+        0.03
+    } else {
+        rng.random_range(0.03..(length - span - 0.03).max(0.04))
+    };
+    for k in 0..count {
+        let along = start + width / 2.0 + k as f64 * (width + gap);
+        let pose = wall_pose(&class, back, wall, along, scale, size);
+        try_add(
+            file,
+            ObjectSpec {
+                class: name.into(),
+                position: pose.position,
+                yaw_deg: pose.yaw_deg,
+                scale,
+                color: Some(color),
+                on: None,
+                surface: 0,
+            },
+        );
+    }
+}
+
+/// The width (local x extent) of an object of `class` at `scale`.
+fn local_width(class: &library::ObjectClass, scale: f64) -> f64 {
+    let probe = crate::render::PlacedObject {
+        instance_id: 0,
+        class_id: class.id,
+        position: glam::DVec3::ZERO,
+        yaw: 0.0,
+        scale,
+        color: class.color,
+        parts: class.parts.clone(),
+        support: None,
+    };
+    let (lo, hi) = probe.bounds();
+    hi.x - lo.x
+}
+
+/// A free-standing row of identical objects side by side, all facing one way.
+fn place_free_row(file: &mut SceneFile, rng: &mut ChaCha8Rng, size: [f64; 3]) {
+    let Some(name) = FREE_ROW_CLASSES.choose(rng).copied() else {
+        return;
+    };
+    let Some(class) = library::class(name) else {
+        return;
+    };
+    let scale = rng.random_range(0.95..1.05);
+    let color = jitter_color(rng, class.color, 0.12);
+    let gap = rng.random_range(0.0..0.1);
+    let count = rng.random_range(2..=4);
+    let yaw = rng.random_range(-180.0f64..180.0);
+    let centre = [
+        rng.random_range(1.0..size[0] - 1.0),
+        rng.random_range(1.0..size[1] - 1.0),
+    ];
+    let step = local_width(&class, scale) + gap;
+    let (c, s) = (yaw.to_radians().cos(), yaw.to_radians().sin());
+    for k in 0..count {
+        let offset = (k as f64 - (count as f64 - 1.0) / 2.0) * step;
+        try_add(
+            file,
+            ObjectSpec {
+                class: name.into(),
+                position: [centre[0] + c * offset, centre[1] + s * offset],
+                yaw_deg: yaw,
+                scale,
+                color: Some(color),
+                on: None,
+                surface: 0,
+            },
+        );
+    }
+}
+
+/// A table with 2 or 3 identical chairs lined up along one long side, facing it.
+fn place_table_with_a_row_of_chairs(file: &mut SceneFile, rng: &mut ChaCha8Rng, size: [f64; 3]) {
+    let yaw = rng.random_range(-180.0f64..180.0);
+    let centre = [
+        rng.random_range(1.2..size[0] - 1.2),
+        rng.random_range(1.2..size[1] - 1.2),
+    ];
+    let table = ObjectSpec {
+        class: "table".into(),
+        position: centre,
+        yaw_deg: yaw,
+        scale: 1.0,
+        color: None,
+        on: None,
+        surface: 0,
+    };
+    if !try_add(file, table) {
+        return;
+    }
+    let color = jitter_color(rng, [0.55, 0.35, 0.2], 0.1);
+    let count = rng.random_range(2..=3);
+    let side = if rng.random::<bool>() { 1.0 } else { -1.0 };
+    let (c, s) = (yaw.to_radians().cos(), yaw.to_radians().sin());
+    for k in 0..count {
+        // Along the table's long local x, a chair's width apart, on one side of it.
+        let x = (k as f64 - (count as f64 - 1.0) / 2.0) * 0.5;
+        let y = side * 0.65;
+        let facing = if side > 0.0 { yaw + 180.0 } else { yaw };
+        try_add(
+            file,
+            ObjectSpec {
+                class: "chair".into(),
+                position: [centre[0] + c * x - s * y, centre[1] + s * x + c * y],
+                yaw_deg: facing,
+                scale: 1.0,
+                color: Some(color),
+                on: None,
+                surface: 0,
+            },
+        );
+    }
+}
+
+/// Chairs around tables, facing them.
+fn place_chairs_at_tables(file: &mut SceneFile, rng: &mut ChaCha8Rng) {
     // Chairs around tables, facing them.
     let tables: Vec<usize> = (0..file.objects.len())
         .filter(|&i| file.objects[i].class == "table")
         .collect();
     for table in tables {
         let chairs = rng.random_range(0..=2);
-        let color = jitter_color(&mut rng, [0.55, 0.35, 0.2], 0.1);
+        let color = jitter_color(rng, [0.55, 0.35, 0.2], 0.1);
         for _ in 0..chairs {
             for _ in 0..10 {
                 let t = &file.objects[table];
@@ -280,13 +491,16 @@ pub fn generate_with(split: Split, index: u64, options: &ProceduralOptions) -> O
                     on: None,
                     surface: 0,
                 };
-                if try_add(&mut file, spec) {
+                if try_add(file, spec) {
                     break;
                 }
             }
         }
     }
+}
 
+/// Small objects on the surfaces that carry them.
+fn place_small_objects(file: &mut SceneFile, rng: &mut ChaCha8Rng) {
     // Small objects on the surfaces that carry them.
     let supports: Vec<usize> = (0..file.objects.len()).collect();
     let classes = library::classes();
@@ -307,7 +521,7 @@ pub fn generate_with(split: Split, index: u64, options: &ProceduralOptions) -> O
             .collect();
         let items = rng.random_range(1..=3);
         for _ in 0..items {
-            let Some(item) = candidates.choose(&mut rng) else {
+            let Some(item) = candidates.choose(rng) else {
                 break;
             };
             let surface_index = rng.random_range(0..support_class.surfaces.len());
@@ -327,17 +541,25 @@ pub fn generate_with(split: Split, index: u64, options: &ProceduralOptions) -> O
                     ],
                     yaw_deg: support_spec.yaw_deg + rng.random_range(-20.0..20.0),
                     scale: rng.random_range(library::SCALE_RANGE.0..library::SCALE_RANGE.1),
-                    color: Some(jitter_color(&mut rng, item.color, 0.12)),
+                    color: Some(jitter_color(rng, item.color, 0.12)),
                     on: Some(support),
                     surface: surface_index,
                 };
-                if try_add(&mut file, spec) {
+                if try_add(file, spec) {
                     break;
                 }
             }
         }
     }
+}
 
+/// The robot: a random walk from a free spot, facing the room's centre.
+fn place_robot(
+    mut file: SceneFile,
+    rng: &mut ChaCha8Rng,
+    size: [f64; 3],
+    options: &ProceduralOptions,
+) -> Option<SceneFile> {
     // The robot: a random walk from a free spot, facing the room's centre. A room too full to
     // stand in loses floor objects (that carry nothing) until there is room.
     let start = loop {
