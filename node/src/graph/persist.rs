@@ -97,6 +97,10 @@ struct Header {
     next_id: u64,
     instances: Vec<InstanceHeader>,
     keyframes: Vec<KeyframeRecord>,
+    /// Pairs of instances a window saw as two objects; absent from maps saved before it was kept
+    /// (and from maps without any, so their bytes are as before).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    seen_apart: Vec<(String, String)>,
 }
 
 #[derive(Debug, Serialize, Deserialize)]
@@ -145,6 +149,7 @@ fn floats_per_gaussian(embedding_dim: usize, extra_dim: usize) -> usize {
 pub fn to_bytes(map: &SceneMap) -> Vec<u8> {
     let header = Header {
         next_id: map.next_id,
+        seen_apart: map.seen_apart.iter().cloned().collect(),
         instances: map
             .instances
             .iter()
@@ -343,6 +348,7 @@ pub fn from_bytes(bytes: &[u8], params: FusionParams) -> Result<SceneMap, Persis
         keyframes,
         next_id: header.next_id,
         params,
+        seen_apart: header.seen_apart.into_iter().collect(),
     })
 }
 

@@ -282,7 +282,13 @@ impl SceneMap {
     ) -> Vec<(String, String)> {
         let p = self.params;
         let is_object = |prototype: &[f32]| names_an_object(same_kind, prototype);
+        let apart = self.seen_apart.clone();
         self.fold_pairs(keep, touched, |instances, footprints, a, b| {
+            let (ia, ib) = (instances[a].id.as_str(), instances[b].id.as_str());
+            let pair = if ia <= ib { (ia, ib) } else { (ib, ia) };
+            if apart.contains(&(pair.0.to_owned(), pair.1.to_owned())) {
+                return false;
+            }
             let (pa, pb) = (&instances[a].prototype, &instances[b].prototype);
             let similar = !pa.is_empty()
                 && !pb.is_empty()

@@ -77,6 +77,9 @@ pub struct SceneMap {
     pub keyframes: VecDeque<Keyframe>,
     pub next_id: u64,
     pub params: FusionParams,
+    /// Pairs of instances (ids, the smaller first) that one window saw as two objects while
+    /// both were already in the map ([`SceneMap::seen_apart`]).
+    pub seen_apart: std::collections::BTreeSet<(String, String)>,
 }
 
 impl SceneMap {
@@ -128,6 +131,7 @@ impl SceneMap {
             },
             &mut report,
         );
+        self.record_seen_apart(&association, &report);
         let mut keep: Vec<bool> = (0..self.instances.len())
             .map(|j| j >= absorbed.len() || !absorbed[j])
             .collect();
@@ -208,6 +212,33 @@ impl SceneMap {
             }
         }
         (matched, absorbed)
+    }
+
+    /// Evidence that instances are different objects: the persistent instances this window's
+    /// instances matched (not those it gave birth to: a window that cuts one object in two makes
+    /// two newborns, which the fragment rule may still join), taken pairwise.
+    fn record_seen_apart(&mut self, association: &Association, report: &FusionReport) {
+        let mut matched: Vec<&String> = association
+            .pairs
+            .iter()
+            .zip(&report.assigned)
+            .filter(|(pair, _)| pair.is_some())
+            .map(|(_, id)| id)
+            .collect();
+        matched.sort();
+        matched.dedup();
+        for (k, a) in matched.iter().enumerate() {
+            for b in &matched[k + 1..] {
+                self.seen_apart.insert(((*a).clone(), (*b).clone()));
+            }
+        }
+    }
+
+    /// Whether a window saw instances `a` and `b` as two objects ([`SceneMap::seen_apart`]).
+    pub fn seen_apart(&self, a: &str, b: &str) -> bool {
+        let pair = if a <= b { (a, b) } else { (b, a) };
+        self.seen_apart
+            .contains(&(pair.0.to_owned(), pair.1.to_owned()))
     }
 
     /// Unmatched instances where some window view sees free space lose confidence; those left
@@ -315,13 +346,20 @@ impl SceneMap {
         self.instances.iter().map(|i| ids.contains(&i.id)).collect()
     }
 
-    /// Drop the instances `keep` does not mark.
+    /// Drop the instances `keep` does not mark, and the evidence about them.
     fn retain_marked(&mut self, keep: &[bool]) {
         let mut index = 0;
         self.instances.retain(|_| {
             index += 1;
             keep[index - 1]
         });
+        if keep.iter().all(|k| *k) {
+            return;
+        }
+        let alive: rustc_hash::FxHashSet<&str> =
+            self.instances.iter().map(|i| i.id.as_str()).collect();
+        self.seen_apart
+            .retain(|(a, b)| alive.contains(a.as_str()) && alive.contains(b.as_str()));
     }
 }
 

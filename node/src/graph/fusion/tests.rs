@@ -217,3 +217,56 @@ fn pairs_judged_far_apart_never_have_intersecting_boxes_or_touching_footprints()
     assert!(pruned > 50 && pruned < 400, "{pruned} of 400 pruned");
     assert_eq!(trials, pruned);
 }
+
+/// Two objects side by side, each a window instance of its own.
+fn sighting(gaussians: &Gaussians, prototype: [f32; 3]) -> crate::frame::WindowInstance {
+    crate::frame::WindowInstance {
+        gaussians: gaussians.clone(),
+        prototype: prototype.to_vec(),
+        support: gaussians.len(),
+    }
+}
+
+#[test]
+fn instances_a_window_saw_apart_are_not_folded_when_their_boxes_grow_into_one_space() {
+    let a = rod(
+        &mut rand_chacha::ChaCha8Rng::seed_from_u64(3),
+        Vec3::new(2.0, 2.0, 0.4),
+    );
+    let b = rod(
+        &mut rand_chacha::ChaCha8Rng::seed_from_u64(4),
+        Vec3::new(4.0, 2.0, 0.4),
+    );
+    // B's points, later, where A is (range noise, a sighting that spanned both): one space.
+    let grown = rod(
+        &mut rand_chacha::ChaCha8Rng::seed_from_u64(3),
+        Vec3::new(2.02, 2.0, 0.4),
+    );
+    let (pa, pb) = ([1.0, 0.0, 0.0], [0.0, 1.0, 0.0]);
+    let run = |seen_apart_first: bool| {
+        let mut map = SceneMap::new(FusionParams::default());
+        map.fuse(vec![sighting(&a, pa)], &[], 1).unwrap();
+        map.fuse(vec![sighting(&b, pb)], &[], 2).unwrap();
+        assert_eq!(map.instances.len(), 2);
+        if seen_apart_first {
+            // One window sees both already-mapped objects, as two.
+            map.fuse(vec![sighting(&a, pa), sighting(&b, pb)], &[], 3)
+                .unwrap();
+        }
+        let (ida, idb) = (map.instances[0].id.clone(), map.instances[1].id.clone());
+        assert_eq!(map.seen_apart(&ida, &idb), seen_apart_first);
+        map.instances[1].gaussians = grown.clone();
+        map.fuse(vec![sighting(&a, pa)], &[], 4).unwrap();
+        map
+    };
+    // Without the evidence the boxes filling one space fold; with it both stay.
+    assert_eq!(run(false).instances.len(), 1);
+    let kept = run(true);
+    assert_eq!(kept.instances.len(), 2);
+    // The evidence is kept with the map and survives a snapshot.
+    let restored =
+        crate::graph::persist::from_bytes(&crate::graph::persist::to_bytes(&kept), kept.params)
+            .unwrap();
+    assert_eq!(restored.seen_apart, kept.seen_apart);
+    assert_eq!(restored.seen_apart.len(), 1);
+}
