@@ -16,6 +16,7 @@ use groupforward::recon::depth_noise;
 use groupforward::timing::{describe, summarise, Stage, StageSummary, StageTimes};
 use groupforward::window::WindowModels;
 use groupforward_harness::eval::interval::{intervals, paired_differences, Interval};
+use groupforward_harness::eval::picture::top_down_svg;
 use groupforward_harness::eval::run::{run_scene, SceneRun};
 use groupforward_harness::eval::score::{
     attach_traces, score_instances, score_map, score_windows, trace_objects, Counts, InstanceRow,
@@ -104,6 +105,8 @@ pub struct Scored {
     pub map_hashes: Vec<(String, String)>,
     /// Per scene: its name, counts and windows.
     pub per_scene: Vec<(String, Counts, usize)>,
+    /// Per scene: its name and its map from above (SVG).
+    pub pictures: Vec<(String, String)>,
     pub window_times: Vec<StageTimes>,
     pub depth: DepthValidity,
     pub model_pixels_without_depth: u64,
@@ -152,9 +155,19 @@ impl Scored {
             MIN_WINDOW_PIXELS,
         ));
         self.total.add(&counts);
+        let instance_rows = score_instances(&run.scene, &run.objects, &run.instances);
+        self.pictures.push((
+            run.scene.clone(),
+            top_down_svg(
+                &run.scene,
+                &run.objects,
+                &scene_rows,
+                &run.instances,
+                &instance_rows,
+            ),
+        ));
         self.rows.extend(scene_rows);
-        self.instance_rows
-            .extend(score_instances(&run.scene, &run.objects, &run.instances));
+        self.instance_rows.extend(instance_rows);
         self.map_hashes.push((
             run.scene.clone(),
             groupforward::graph::persist::content_hash(&run.map),
@@ -218,7 +231,9 @@ pub fn eval_map(
         model_pixels_without_depth,
         lifted_at_neighbour_depth,
         depth_noise_at_1m,
+        pictures,
     } = score_scenes(files, &config, &mut window_models, "eval map")?;
+    write_pictures(&pictures, &out.join("maps"))?;
     let noise_at_1m = depth_noise::median_measured(depth_noise_at_1m.iter().copied());
     let noise_windows = depth_noise_at_1m.iter().flatten().count();
     let summary = total.summary();
@@ -407,6 +422,16 @@ pub fn stages_json(stages: &[StageSummary]) -> serde_json::Value {
         })
         .collect::<serde_json::Map<_, _>>()
         .into()
+}
+
+/// Each scene's map from above, as `dir/<scene>.svg`.
+fn write_pictures(pictures: &[(String, String)], dir: &Path) -> Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    for (scene, svg) in pictures {
+        let path = dir.join(format!("{scene}.svg"));
+        std::fs::write(&path, svg).with_context(|| format!("writing {}", path.display()))?;
+    }
+    Ok(())
 }
 
 fn csv_writer(path: &Path) -> Result<std::io::BufWriter<std::fs::File>> {

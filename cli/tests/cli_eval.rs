@@ -112,6 +112,14 @@ fn eval_all_runs_every_evaluation_on_the_same_scenes_and_gathers_their_figures()
     );
     assert!((0.0..=1.0).contains(&recall), "{recall}");
     assert!(figure(&summary["refer"]["queries"]) >= 1.0);
+    // The scene's map from above: its objects and listed instances drawn.
+    let picture = std::fs::read_to_string(out.path().join("map/maps/benchmark_00010.svg"))
+        .expect("the scene's picture");
+    assert!(
+        picture.matches("class=\"object\"").count() >= 3,
+        "{picture}"
+    );
+    assert!(picture.contains("class=\"instance\""));
     assert_eq!(figure(&summary["window"]["summary"]["windows"]), 1.0);
     // Every listed instance, with what it matched.
     let instances =

@@ -4,6 +4,7 @@
 //! - [`baseline`]: the ablation without instances (semantic features lifted per voxel);
 //! - [`interval`]: 95% bootstrap intervals over scenes, of a run's figures and of the
 //!   difference between two runs;
+//! - [`picture`]: a scene's map from above (objects by outcome, instances by what they are);
 //! - [`run`]: a sim scene through the node's stages (bag → ingest → keyframes → window pass →
 //!   fusion), every window processed, ground truth kept beside the pipeline;
 //! - [`score`]: the final map and each window's instances scored against the objects;
@@ -14,6 +15,7 @@
 
 pub mod baseline;
 pub mod interval;
+pub mod picture;
 pub mod refer;
 pub mod run;
 pub mod score;
