@@ -14,9 +14,7 @@ use groupforward_harness::eval::refer::{
 };
 use groupforward_harness::eval::run::{record_scene, replay_scene_with};
 use groupforward_harness::eval::score::TruthObject;
-use groupforward_sim::referring::{
-    observed_expressions, scene_expressions, Expression, Relation, ViewPose,
-};
+use groupforward_sim::referring::{observed_expressions, Expression, Relation, ViewPose};
 use groupforward_sim::scene::SceneFile;
 use groupforward_sim::simulation::Simulation;
 
@@ -152,13 +150,18 @@ fn benchmark_expressions(
         .map(|o| o.id)
         .collect();
     let failed = |e: groupforward_sim::scene::SceneError| anyhow::anyhow!("{}: {e}", file.name);
-    let (answerable, refusals) = observed_expressions(file, &observed).map_err(failed)?;
-    let every = scene_expressions(file).map_err(failed)?;
-    Ok(answerable
+    let benchmark = observed_expressions(file, &observed).map_err(failed)?;
+    Ok(benchmark
+        .answerable
         .into_iter()
         .map(|e| (e, Truth::Observed))
-        .chain(refusals.into_iter().map(|e| (e, Truth::Refusal)))
-        .chain(every.into_iter().map(|e| (e, Truth::EveryObject)))
+        .chain(benchmark.refusals.into_iter().map(|e| (e, Truth::Refusal)))
+        .chain(
+            benchmark
+                .every_object
+                .into_iter()
+                .map(|e| (e, Truth::EveryObject)),
+        )
         .collect())
 }
 

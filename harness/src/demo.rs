@@ -38,12 +38,11 @@ pub enum DemoError {
     Transport(#[from] TransportError),
     #[error(transparent)]
     Node(#[from] groupforward::node::NodeError),
-    #[error("the node did not {0} within {1:?}")]
-    Timeout(&'static str, Duration),
     #[error("{0}")]
     Protocol(String),
     #[error("simulator: {0}")]
     Sim(String),
+    /// A call to the node failed or timed out ([`groupforward::client`]).
     #[error(transparent)]
     Client(#[from] ClientError),
 }

@@ -208,17 +208,7 @@ fn wall_pose(
     };
     // Local (0, back) must point along the wall's outward normal.
     let yaw = normal[1].atan2(normal[0]) - back * std::f64::consts::FRAC_PI_2;
-    let probe = crate::render::PlacedObject {
-        instance_id: 0,
-        class_id: class.id,
-        position: glam::DVec3::ZERO,
-        yaw,
-        scale,
-        color: class.color,
-        parts: class.parts.clone(),
-        support: None,
-    };
-    let (lo, hi) = probe.bounds();
+    let (lo, hi) = placed_bounds(class, yaw, scale);
     let gap = 0.02;
     let (position, width) = match wall {
         0 => ([-lo.x + gap, along], hi.y - lo.y),
@@ -367,20 +357,19 @@ fn place_wall_row(file: &mut SceneFile, rng: &mut ChaCha8Rng, size: [f64; 3]) {
     }
 }
 
-/// The width (local x extent) of an object of `class` at `scale`.
-fn local_width(class: &library::ObjectClass, scale: f64) -> f64 {
-    let probe = crate::render::PlacedObject {
+/// The world bounds of an object of `class` placed at the origin, turned by `yaw`, scaled.
+fn placed_bounds(class: &library::ObjectClass, yaw: f64, scale: f64) -> (glam::DVec3, glam::DVec3) {
+    crate::render::PlacedObject {
         instance_id: 0,
         class_id: class.id,
         position: glam::DVec3::ZERO,
-        yaw: 0.0,
+        yaw,
         scale,
         color: class.color,
         parts: class.parts.clone(),
         support: None,
-    };
-    let (lo, hi) = probe.bounds();
-    hi.x - lo.x
+    }
+    .bounds()
 }
 
 /// A free-standing row of identical objects side by side, all facing one way.
@@ -400,7 +389,8 @@ fn place_free_row(file: &mut SceneFile, rng: &mut ChaCha8Rng, size: [f64; 3]) {
         rng.random_range(1.0..size[0] - 1.0),
         rng.random_range(1.0..size[1] - 1.0),
     ];
-    let step = local_width(&class, scale) + gap;
+    let (lo, hi) = placed_bounds(&class, 0.0, scale);
+    let step = hi.x - lo.x + gap;
     let (c, s) = (yaw.to_radians().cos(), yaw.to_radians().sin());
     for k in 0..count {
         let offset = (k as f64 - (count as f64 - 1.0) / 2.0) * step;

@@ -71,17 +71,26 @@ pub fn scene_expressions(
     Ok(generate(&scene, &trajectory_views(file, 20), half_fov))
 }
 
+/// A scene's benchmark as an observer of its trajectory can know it ([`observed_expressions`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct ObservedBenchmark {
+    /// Decided over the observed objects alone (a superlative or relation over that set).
+    pub answerable: Vec<Expression>,
+    /// About a class no observed object has (a function none serves): right only as a refusal.
+    pub refusals: Vec<Expression>,
+    /// Decided over every object, seen or not: the benchmark before it knew what was seen.
+    pub every_object: Vec<Expression>,
+}
+
 /// A scene's benchmark as an observer of its trajectory can know it: `observed` holds the instance
-/// ids the trajectory saw well enough (the evaluation's pixel floor). Returns the expressions
-/// decided over the observed objects alone (a superlative or relation over that set), and the
-/// refusal tests: expressions over every object whose targets were all never observed and of a
-/// class no observed object has (function phrases: no observed object does what they ask), and
-/// whose text the observed objects do not also generate. A system that saw the room can only
-/// answer those with "not seen".
+/// ids the trajectory saw well enough (the evaluation's pixel floor). The refusal tests are the
+/// expressions over every object whose targets were all never observed and of a class no observed
+/// object has, and whose text the observed objects do not also generate. A system that saw the
+/// room can only answer those with "not seen".
 pub fn observed_expressions(
     file: &crate::scene::SceneFile,
     observed: &[u16],
-) -> Result<(Vec<Expression>, Vec<Expression>), crate::scene::SceneError> {
+) -> Result<ObservedBenchmark, crate::scene::SceneError> {
     let scene = file.build()?;
     let half_fov = file.cameras.first().map_or(45.0, |c| c.fov_x_deg / 2.0);
     let views = trajectory_views(file, 20);
@@ -99,16 +108,22 @@ pub fn observed_expressions(
     let observed_classes: std::collections::HashSet<&str> =
         seen.objects.iter().map(|o| geometry(o).class).collect();
     let answerable = generate(&seen, &views, half_fov);
+    let every_object = generate(&scene, &views, half_fov);
     let texts: std::collections::HashSet<&str> =
         answerable.iter().map(|e| e.text.as_str()).collect();
-    let refusals = generate(&scene, &views, half_fov)
-        .into_iter()
+    let refusals = every_object
+        .iter()
         .filter(|e| {
             !e.targets.is_empty()
                 && e.targets.iter().all(|t| !observed.contains(t))
                 && !observed_classes.contains(e.target_class.as_str())
                 && !texts.contains(e.text.as_str())
         })
+        .cloned()
         .collect();
-    Ok((answerable, refusals))
+    Ok(ObservedBenchmark {
+        answerable,
+        refusals,
+        every_object,
+    })
 }

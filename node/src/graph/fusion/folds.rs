@@ -282,11 +282,10 @@ impl SceneMap {
     ) -> Vec<(String, String)> {
         let p = self.params;
         let is_object = |prototype: &[f32]| names_an_object(same_kind, prototype);
-        let apart = self.seen_apart.clone();
+        // By index, once: instances keep their places while the pairs are judged.
+        let apart = self.seen_apart_indices();
         self.fold_pairs(keep, touched, |instances, footprints, a, b| {
-            let (ia, ib) = (instances[a].id.as_str(), instances[b].id.as_str());
-            let pair = if ia <= ib { (ia, ib) } else { (ib, ia) };
-            if apart.contains(&(pair.0.to_owned(), pair.1.to_owned())) {
+            if apart.contains(&(a.min(b), a.max(b))) {
                 return false;
             }
             let (pa, pb) = (&instances[a].prototype, &instances[b].prototype);

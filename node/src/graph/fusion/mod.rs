@@ -234,6 +234,26 @@ impl SceneMap {
         }
     }
 
+    /// [`SceneMap::seen_apart`] as pairs of indices into `instances` (the smaller first).
+    fn seen_apart_indices(&self) -> rustc_hash::FxHashSet<(usize, usize)> {
+        if self.seen_apart.is_empty() {
+            return Default::default();
+        }
+        let index: rustc_hash::FxHashMap<&str, usize> = self
+            .instances
+            .iter()
+            .enumerate()
+            .map(|(k, i)| (i.id.as_str(), k))
+            .collect();
+        self.seen_apart
+            .iter()
+            .filter_map(|(a, b)| {
+                let (a, b) = (*index.get(a.as_str())?, *index.get(b.as_str())?);
+                Some((a.min(b), a.max(b)))
+            })
+            .collect()
+    }
+
     /// Whether a window saw instances `a` and `b` as two objects ([`SceneMap::seen_apart`]).
     pub fn seen_apart(&self, a: &str, b: &str) -> bool {
         let pair = if a <= b { (a, b) } else { (b, a) };
