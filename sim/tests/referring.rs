@@ -278,9 +278,10 @@ fn an_observer_s_benchmark_decides_over_what_it_saw_and_asks_for_refusals_of_the
     let scene = file.build().unwrap();
     let every: Vec<u16> = scene.objects.iter().map(|o| o.instance_id).collect();
     // Everything observed: the benchmark as it was, and nothing to refuse.
-    let (answerable, refusals) = observed_expressions(&file, &every).unwrap();
-    assert_eq!(answerable, scene_expressions(&file).unwrap());
-    assert!(refusals.is_empty());
+    let all_seen = observed_expressions(&file, &every).unwrap();
+    assert_eq!(all_seen.answerable, scene_expressions(&file).unwrap());
+    assert_eq!(all_seen.every_object, all_seen.answerable);
+    assert!(all_seen.refusals.is_empty());
     // One object never observed, the only one of its class: no answerable expression targets it,
     // and asking for it is a refusal test.
     let hidden = scene
@@ -301,7 +302,9 @@ fn an_observer_s_benchmark_decides_over_what_it_saw_and_asks_for_refusals_of_the
         .copied()
         .filter(|id| *id != hidden.instance_id)
         .collect();
-    let (answerable, refusals) = observed_expressions(&file, &observed).unwrap();
+    let one_hidden = observed_expressions(&file, &observed).unwrap();
+    let (answerable, refusals) = (one_hidden.answerable, one_hidden.refusals);
+    assert_eq!(one_hidden.every_object, all_seen.every_object);
     assert!(answerable
         .iter()
         .all(|e| !e.targets.contains(&hidden.instance_id)));
@@ -311,4 +314,46 @@ fn an_observer_s_benchmark_decides_over_what_it_saw_and_asks_for_refusals_of_the
         .all(|e| e.targets.iter().all(|t| *t == hidden.instance_id)));
     let texts: Vec<&str> = answerable.iter().map(|e| e.text.as_str()).collect();
     assert!(refusals.iter().all(|e| !texts.contains(&e.text.as_str())));
+}
+
+#[test]
+fn a_function_some_observed_object_serves_is_no_refusal_test() {
+    use groupforward_sim::referring::observed_expressions;
+    // Hide one of several objects of a class: "all the things you can X" over every object then
+    // names an observed object too, and asking it is answerable, not a refusal.
+    for index in 0..10 {
+        let file = generate(Split::Benchmark, index).unwrap();
+        let scene = file.build().unwrap();
+        let Some(hidden) = scene.objects.iter().find(|o| {
+            scene
+                .objects
+                .iter()
+                .filter(|p| p.class_id == o.class_id)
+                .count()
+                >= 2
+        }) else {
+            continue;
+        };
+        let observed: Vec<u16> = scene
+            .objects
+            .iter()
+            .map(|o| o.instance_id)
+            .filter(|id| *id != hidden.instance_id)
+            .collect();
+        let benchmark = observed_expressions(&file, &observed).unwrap();
+        for e in &benchmark.refusals {
+            assert!(
+                e.targets.iter().all(|t| !observed.contains(t)),
+                "{index}: {} names an observed object",
+                e.text
+            );
+        }
+        assert!(benchmark.every_object.iter().any(|e| {
+            e.relation == Relation::Function
+                && e.targets.contains(&hidden.instance_id)
+                && e.targets.len() > 1
+        }));
+        return;
+    }
+    panic!("no benchmark scene with two objects of a class");
 }

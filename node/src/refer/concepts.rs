@@ -178,7 +178,7 @@ mod tests {
         let lie_down = [0.8, 0.6, 0.0];
         let by_name = Concept::new("lie down on", &lie_down, &scene, 0.05);
         assert_eq!(by_name.nearest_phrase(&scene).map(|p| p.0), Some("chair"));
-        let functions = vec![vec![vec![0.0, 0.0, 0.0]], vec![vec![0.8, 0.6, 0.0]]];
+        let functions = vec![Vec::new(), vec![vec![0.8, 0.6, 0.0]]];
         let by_function = Concept::for_function("lie down on", &lie_down, &scene, &functions, 0.05);
         assert_eq!(
             by_function.nearest_phrase(&scene).map(|p| p.0),
@@ -186,6 +186,10 @@ mod tests {
         );
         assert!(by_function.weights.iter().all(|w| w.is_finite()));
         assert_eq!(by_function.weights[2], 0.0);
+        // A zero function embedding lowers nothing, and no functions change nothing.
+        let zero = vec![vec![vec![0.0, 0.0, 0.0]], Vec::new()];
+        let with_zero = Concept::for_function("lie down on", &lie_down, &scene, &zero, 0.05);
+        assert_eq!(with_zero, by_name);
         let none = Concept::for_function("lie down on", &lie_down, &scene, &[], 0.05);
         assert_eq!(none, by_name);
     }
