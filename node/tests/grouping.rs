@@ -422,6 +422,56 @@ fn hypotheses_rank_phrases_by_prototype_cosine() {
 }
 
 #[test]
+fn a_name_whose_objects_are_never_that_long_gives_way_to_the_next_object_name() {
+    // The built-in priors: no chair is longer than 0.52 m, no table than 1.38 m.
+    let v = vocabulary(0.05);
+    let chairish = [0.9, 0.85, 0.3];
+    let best = |length: Option<f64>| v.hypotheses_given(&chairish, length, 1)[0].0.clone();
+    assert_eq!(best(None), "chair");
+    assert_eq!(best(Some(0.5)), "chair", "a chair's length");
+    assert_eq!(
+        best(Some(1.0)),
+        "chair",
+        "a chair with a piece of what it touches"
+    );
+    assert_eq!(
+        best(Some(1.2)),
+        "table",
+        "longer than two chairs side by side"
+    );
+    let p = v.probabilities_given(&chairish, Some(1.2));
+    assert_eq!(p[0], 0.0);
+    assert_eq!(
+        p[2], 0.0,
+        "structure takes no share: the features called it an object"
+    );
+    assert!((p.iter().sum::<f32>() - 1.0).abs() < 1e-5, "{p:?}");
+    // Nothing admits 10 m: the features' name stands. So it does for structure, any length,
+    // and for a length that is no number.
+    assert_eq!(best(Some(10.0)), "chair");
+    assert_eq!(
+        v.hypotheses_given(&[0.1, 0.3, 0.9], Some(0.3), 1)[0].0,
+        "other"
+    );
+    assert_eq!(
+        v.probabilities_given(&chairish, Some(f64::NAN)),
+        v.probabilities(&chairish)
+    );
+    // A name the features give no real share does not take over: a chair 1.2 m long whose
+    // features leave the table a trace is a chair with a piece of something attached.
+    let sure = [0.9, 0.5, 0.3];
+    assert!(v.probabilities(&sure)[1] < groupforward::group::semantics::MIN_ADMITTED_SHARE);
+    assert_eq!(v.hypotheses_given(&sure, Some(1.2), 1)[0].0, "chair");
+    // A vocabulary without priors names by the features alone.
+    let mut without = v.clone();
+    without.priors = Default::default();
+    assert_eq!(
+        without.hypotheses_given(&chairish, Some(1.2), 1)[0].0,
+        "chair"
+    );
+}
+
+#[test]
 fn the_object_list_leaves_out_structure_and_small_pieces_named_unsurely() {
     use groupforward::group::semantics::{CONFIDENT_NAME, MIN_LISTED_GAUSSIANS};
     let v = vocabulary(0.05);

@@ -381,7 +381,7 @@ fn listed_instances(map: &SceneMap, models: &WindowModels) -> Vec<ListedInstance
         .into_iter()
         .map(|(i, bbox)| {
             let (name, name_score) = vocabulary
-                .and_then(|v| v.hypotheses(&i.prototype, 1).into_iter().next())
+                .and_then(|v| i.hypotheses(v, 1).into_iter().next())
                 .unwrap_or_default();
             ListedInstance {
                 id: i.id.clone(),

@@ -2,6 +2,7 @@
 
 use glam::Vec3;
 
+use crate::group::semantics::Vocabulary;
 use crate::recon::boxes::{OrientedBox, DEFAULT_TRIM};
 use crate::recon::gaussians::{voxel_downsample, Gaussians};
 use crate::recon::round::fit_object_box;
@@ -63,6 +64,23 @@ impl Instance {
     pub fn center(&self) -> Vec3 {
         let (lo, hi) = self.bounds();
         (lo + hi) / 2.0
+    }
+
+    /// Its length: the longer horizontal side of its points ([`OrientedBox::principal_length`]).
+    pub fn length_m(&self) -> f64 {
+        OrientedBox::principal_length(&self.gaussians.means, DEFAULT_TRIM)
+    }
+
+    /// Its names, best first, with their scores: its prototype's, less the names whose objects
+    /// are never as long as it is ([`Vocabulary::hypotheses_given`]).
+    pub fn hypotheses(&self, vocabulary: &Vocabulary, count: usize) -> Vec<(String, f32)> {
+        vocabulary.hypotheses_given(&self.prototype, Some(self.length_m()), count)
+    }
+
+    /// p(name) for every phrase of `vocabulary`, in its order, as [`Instance::hypotheses`] ranks
+    /// them.
+    pub fn name_probabilities(&self, vocabulary: &Vocabulary) -> Vec<f32> {
+        vocabulary.probabilities_given(&self.prototype, Some(self.length_m()))
     }
 
     /// The box the map publishes for this instance (and the evaluation scores): fitted to its

@@ -334,7 +334,7 @@ pub fn object_list<'a>(
         .filter_map(|i| {
             // The best name, read once: three completions ask for it.
             let name = vocabulary
-                .and_then(|v| v.hypotheses(&i.prototype, 1).into_iter().next())
+                .and_then(|v| i.hypotheses(v, 1).into_iter().next())
                 .map(|(name, _)| name);
             let name = name.as_deref();
             let box_like = name.is_some_and(|n| priors.typical_depth(n).is_some());

@@ -13,6 +13,13 @@ use serde::{Deserialize, Serialize};
 /// What walls, floor and anything unnamed are called (the semantic model's explicit `other` class).
 pub const OTHER_PHRASE: &str = "other";
 
+/// Something longer than this many times a class's largest side is not one of its objects: two
+/// of them side by side would be as long. Read on benchmark 0-19: at 1.5, instances a little
+/// longer than their object (a chair with a piece of the table it stands at, 0.8-0.9 m; a lamp
+/// with its stand) lost their right name; tables and desks named box, chair or sink measured 2.2
+/// to 2.4 times those names' largest sides.
+pub const NAME_LENGTH_MARGIN: f64 = 2.0;
+
 /// The default vocabulary file, compiled in. Generated from the simulator by `groupforward sim
 /// vocabulary`; the harness's tests keep the two in sync.
 pub const DEFAULT_VOCABULARY_YAML: &str = include_str!("../../data/default_vocabulary.yaml");
@@ -166,6 +173,14 @@ impl ClassPriors {
     /// The longest horizontal side `name`'s objects have, if known.
     pub fn largest_side(&self, name: &str) -> Option<f64> {
         self.class(name)?.largest_side_m
+    }
+
+    /// Whether something `length_m` long (its longer horizontal side, as measured) could be one
+    /// of `name`'s objects: at most [`NAME_LENGTH_MARGIN`] times its largest side (any length
+    /// when the class has none).
+    pub fn admits_length(&self, name: &str, length_m: f64) -> bool {
+        self.largest_side(name)
+            .is_none_or(|side| length_m <= NAME_LENGTH_MARGIN * side)
     }
 
     /// Whether `name`'s objects stand on the floor (false when unknown).

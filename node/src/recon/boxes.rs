@@ -90,11 +90,7 @@ impl OrientedBox {
     /// set gives a zero box at the origin, a single point or a degenerate set a box of zero size
     /// along the degenerate axes.
     pub fn fit(points: &[Vec3], trim: f64) -> Self {
-        let points: Vec<DVec3> = points
-            .iter()
-            .map(|p| p.as_dvec3())
-            .filter(|p| p.is_finite())
-            .collect();
+        let points = finite_points(points);
         if points.is_empty() {
             return Self::from_bounds(DVec3::ZERO, DVec3::ZERO);
         }
@@ -117,6 +113,18 @@ impl OrientedBox {
         }
         let (_, fitted) = best.unwrap_or((0.0, Self::fit_at_yaw(&points, 0.0, trim, vertical)));
         fitted.canonical()
+    }
+
+    /// The longer horizontal side of `points`' box at their principal axis, trimmed like
+    /// [`OrientedBox::fit`]: an object's length in one pass, without the yaw search (an L of two
+    /// faces reads a little longer along its diagonal). 0 without finite points.
+    pub fn principal_length(points: &[Vec3], trim: f64) -> f64 {
+        let points = finite_points(points);
+        if points.is_empty() {
+            return 0.0;
+        }
+        let fitted = Self::fit_at_yaw(&points, principal_yaw(&points), trim, (0.0, 0.0));
+        fitted.size.x.max(fitted.size.y)
     }
 
     /// How close `points` lie to this box's vertical sides: Σ 1 / max(d, 4 cm) over the points,
@@ -196,6 +204,15 @@ fn principal_yaw(points: &[DVec3]) -> f64 {
 
 /// (low, high) percentiles of `values` leaving `trim` of them out at each end: the values a
 /// sort would put at those ranks, found by selection (linear time; boxes are refitted often).
+/// `points` in f64, less the non-finite ones.
+fn finite_points(points: &[Vec3]) -> Vec<DVec3> {
+    points
+        .iter()
+        .map(|p| p.as_dvec3())
+        .filter(|p| p.is_finite())
+        .collect()
+}
+
 pub(crate) fn trimmed_range(values: &mut [f64], trim: f64) -> (f64, f64) {
     let n = values.len();
     let cut = ((n as f64) * trim.clamp(0.0, 0.49)).floor() as usize;
@@ -255,6 +272,22 @@ fn polygon_area(polygon: &[DVec2]) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn principal_length_is_a_turned_rectangles_longer_side_and_zero_for_degenerate_sets() {
+        let yaw = 0.5f32;
+        let (c, s) = (yaw.cos(), yaw.sin());
+        let rectangle: Vec<Vec3> = (0..=40)
+            .flat_map(|i| (0..=10).map(move |j| (i as f32 * 0.05 - 1.0, j as f32 * 0.05 - 0.25)))
+            .map(|(u, v)| Vec3::new(c * u - s * v, s * u + c * v, 0.3))
+            .collect();
+        let length = OrientedBox::principal_length(&rectangle, 0.0);
+        assert!((length - 2.0).abs() < 0.01, "{length}");
+        assert_eq!(OrientedBox::principal_length(&[], 0.0), 0.0);
+        assert_eq!(OrientedBox::principal_length(&[Vec3::ONE; 5], 0.02), 0.0);
+        let with_nan = [Vec3::ZERO, Vec3::new(f32::NAN, 0.0, 0.0), Vec3::X];
+        assert!((OrientedBox::principal_length(&with_nan, 0.0) - 1.0).abs() < 1e-9);
+    }
 
     fn unit_at(x: f64, yaw: f64) -> OrientedBox {
         OrientedBox {

@@ -112,8 +112,12 @@ impl ReferScene {
         .collect();
         let mut nodes = Vec::new();
         for (instance, node) in map.instances.iter().zip(&graph.nodes) {
+            // What the object list leaves out (structure, small unsure pieces) is no candidate.
+            let Some(&bbox) = listed.get(&instance.id) else {
+                continue;
+            };
             let names = vocabulary
-                .map(|v| v.probabilities(&instance.prototype))
+                .map(|v| instance.name_probabilities(v))
                 .unwrap_or_default();
             let best = names
                 .iter()
@@ -123,10 +127,6 @@ impl ReferScene {
             let label = match (vocabulary, best) {
                 (Some(v), Some(i)) => v.phrases[i].clone(),
                 _ => String::new(),
-            };
-            // What the object list leaves out (structure, small unsure pieces) is no candidate.
-            let Some(&bbox) = listed.get(&instance.id) else {
-                continue;
             };
             let (lo, hi) = box_bounds(&bbox);
             let n = instance.gaussians.len().max(1) as f32;

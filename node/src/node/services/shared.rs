@@ -130,7 +130,7 @@ pub fn instance_messages_cached(
         .map(|(i, b)| Instance {
             id: i.id.clone(),
             hypotheses: vocabulary
-                .map(|v| v.hypotheses(&i.prototype, hypotheses))
+                .map(|v| i.hypotheses(v, hypotheses))
                 .unwrap_or_default()
                 .into_iter()
                 .map(|(class_id, score)| ObjectHypothesis {
