@@ -45,6 +45,9 @@ pub enum Relation {
     Rightmost,
     Color,
     Function,
+    /// "the table closest to the chair farthest from the bed": a distance relation to an anchor
+    /// that is itself picked by one.
+    TwoHop,
 }
 
 impl Relation {

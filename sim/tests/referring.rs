@@ -75,6 +75,7 @@ fn every_relation_type_is_generated() {
     for relation in [
         Class, Closest, Farthest, Above, Below, On, Supporting, Left, Right, Front, Behind,
         Between, Biggest, Smallest, Tallest, Highest, Lowest, Leftmost, Rightmost, Color, Function,
+        TwoHop,
     ] {
         assert!(
             counts.get(&relation).copied().unwrap_or(0) > 0,
@@ -135,6 +136,43 @@ fn expressions_mean_exactly_their_targets() {
                             assert!(d(g) <= target - 0.2, "{}", e.text);
                         }
                     }
+                }
+                Relation::TwoHop => {
+                    // The anchor is the one of its class the inner words pick against the far
+                    // object, and the target the one of its class the outer words pick against
+                    // the anchor; every other is at least Sr3D's 0.2 m behind.
+                    let (anchor, far) = (
+                        geometry(&scene, e.anchors[0]),
+                        geometry(&scene, e.anchors[1]),
+                    );
+                    let (outer, inner) = e
+                        .text
+                        .split_once(&format!(" the {} ", anchor.class))
+                        .unwrap();
+                    let picks = |words: &str, of: &Geometry, among: &[Geometry], by: &Geometry| {
+                        let d = |g: &Geometry| (g.center() - by.center()).length();
+                        among.iter().filter(|g| g.id != of.id).all(|g| {
+                            if words.contains("closest to") {
+                                d(g) >= d(of) + 0.2
+                            } else {
+                                assert!(words.contains("farthest from"), "{}", e.text);
+                                d(g) <= d(of) - 0.2
+                            }
+                        })
+                    };
+                    let anchors_class: Vec<Geometry> = scene
+                        .objects
+                        .iter()
+                        .map(object_geometry)
+                        .filter(|g| g.class == anchor.class)
+                        .collect();
+                    assert!(anchors_class.len() >= 2, "{}", e.text);
+                    assert!(picks(inner, &anchor, &anchors_class, &far), "{}", e.text);
+                    assert!(
+                        picks(outer, &targets[0], &same_class, &anchor),
+                        "{}",
+                        e.text
+                    );
                 }
                 Relation::Biggest | Relation::Smallest => {
                     for g in same_class.iter().filter(|g| g.id != targets[0].id) {

@@ -200,10 +200,11 @@ pub fn matched_object(b: &OrientedBox, objects: &[TruthObject]) -> (u16, f64) {
         .map_or((0, 0.0), |(id, _)| (id, 0.0))
 }
 
-/// Whether the map holds what `e` relates to: both anchors of "between", any one of the others
-/// (support relations hold with any instance of the anchor class).
+/// Whether the map holds what `e` relates to: both anchors of "between" and of two hops, any
+/// one of the others (support relations hold with any instance of the anchor class).
 fn anchors_in_map(e: &Expression, in_map: &[u16]) -> bool {
-    if e.relation == groupforward_sim::referring::Relation::Between {
+    use groupforward_sim::referring::Relation;
+    if matches!(e.relation, Relation::Between | Relation::TwoHop) {
         e.anchors.iter().all(|a| in_map.contains(a))
     } else {
         e.anchors.is_empty() || e.anchors.iter().any(|a| in_map.contains(a))

@@ -170,6 +170,35 @@ fn function_concept(
     ))
 }
 
+/// A two-hop anchor answered first, by the same steps: the instances it chose as the anchor
+/// list, and a trace line saying so. Its failures are the query's ("no bed has been seen to
+/// relate to").
+fn answer_anchor(
+    scene: &ReferScene,
+    embed: &mut dyn Embed,
+    anchor: &Query,
+    request: &Request,
+    section: &ReferSection,
+) -> Result<(retrieve::AnchorList, String), ReferError> {
+    let inner = Request {
+        max_targets: 0,
+        ..request.clone()
+    };
+    let answer = answer_query(scene, embed, anchor.clone(), &inner, section)?;
+    let list: retrieve::AnchorList = answer
+        .chosen
+        .iter()
+        .map(|c| (c.index, c.confidence.clamp(f32::MIN_POSITIVE, 1.0)))
+        .collect();
+    let ids: Vec<&str> = list.iter().map(|a| scene.nodes[a.0].id.as_str()).collect();
+    let trace = format!(
+        "anchor {:?} answered first: {}; ",
+        anchor.text,
+        ids.join(", ")
+    );
+    Ok((list, trace))
+}
+
 /// Answer an already parsed `query` (the rule parser's or a validated LLM decomposition).
 pub fn answer_query(
     scene: &ReferScene,
@@ -204,17 +233,26 @@ pub fn answer_query(
             section.concept_temperature,
         ))
     };
-    let anchors = query
-        .anchors
-        .iter()
-        .map(|a| concept(a))
-        .collect::<Result<Vec<_>, _>>()?;
     let view = request.view.or_else(|| latest_view(scene));
+    let (anchor_lists, anchor_trace) = match &query.anchor_query {
+        Some(anchor) => {
+            let (list, trace) = answer_anchor(scene, embed, anchor, request, section)?;
+            (vec![list], trace)
+        }
+        None => {
+            let anchors = query
+                .anchors
+                .iter()
+                .map(|a| concept(a))
+                .collect::<Result<Vec<_>, _>>()?;
+            (retrieve::anchor_lists(scene, &anchors), String::new())
+        }
+    };
     let retrieval = retrieve::retrieve(
         scene,
         &query,
         &target,
-        &anchors,
+        anchor_lists,
         view.as_ref(),
         section.top_k,
     );
@@ -229,7 +267,7 @@ pub fn answer_query(
         .nearest_phrase(scene)
         .map(|(p, w)| format!("{:?} reads as {p:?} ({w:.2}); ", query.target))
         .unwrap_or_default();
-    let mut trace = nearest + &decision.trace;
+    let mut trace = anchor_trace + &nearest + &decision.trace;
     if let Some(shortfall) = &decision.shortfall {
         trace += &format!("; {shortfall}");
     }

@@ -106,8 +106,12 @@ pub struct Query {
     pub superlative: Option<Superlative>,
     pub relation: Option<Relation>,
     /// Anchor concepts: one for most relations, two for "between" (the same phrase twice for
-    /// "between the two chairs").
+    /// "between the two chairs"). For a two-hop anchor, its target concept.
     pub anchors: Vec<String>,
+    /// A two-hop anchor: the anchor phrase is itself a referring expression ("the cabinet
+    /// closest to *the chair farthest from the bed*"), answered first; its answer is the anchor.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub anchor_query: Option<Box<Query>>,
 }
 
 impl Query {
@@ -222,6 +226,7 @@ pub fn parse(text: &str) -> Result<Query, ParseError> {
         superlative: None,
         relation: None,
         anchors: Vec::new(),
+        anchor_query: None,
     };
     if let Some(function) = function_phrase(&words) {
         query.function = true;
@@ -247,6 +252,10 @@ pub fn parse(text: &str) -> Result<Query, ParseError> {
     if let Some(relation) = relation {
         query.relation = Some(relation);
         query.anchors = anchors(tail, relation);
+        if let Some(anchor) = anchor_expression(tail, relation) {
+            query.anchors = vec![anchor.target.clone()];
+            query.anchor_query = Some(Box::new(anchor));
+        }
         if query.anchors.len() < relation.anchors_needed() {
             return Err(ParseError::MissingAnchor {
                 relation,
@@ -376,6 +385,17 @@ fn looks_plural(word: &str) -> bool {
         && !word.ends_with("is")
 }
 
+/// The anchor phrase after a relation as a referring expression of its own, when it is one (it
+/// relates its object to another: "the chair farthest from the bed"); parsed by the same rules.
+/// "Between" takes two plain anchors.
+fn anchor_expression(tail: &[String], relation: Relation) -> Option<Query> {
+    if relation == Relation::Between || split_relation(tail).1.is_none() {
+        return None;
+    }
+    let anchor = parse(&tail.join(" ")).ok()?;
+    (anchor.relation.is_some() && !anchor.function).then_some(anchor)
+}
+
 /// Anchor concepts after the relation phrase.
 fn anchors(tail: &[String], relation: Relation) -> Vec<String> {
     let strip = |words: &[String]| -> String {
@@ -417,6 +437,26 @@ fn anchors(tail: &[String], relation: Relation) -> Vec<String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn an_anchor_that_is_itself_a_referring_expression_is_parsed_as_one() {
+        let q = p("the cabinet closest to the chair farthest from the bed");
+        assert_eq!(
+            (q.target.as_str(), q.relation),
+            ("cabinet", Some(Relation::Closest))
+        );
+        assert_eq!(q.anchors, ["chair"]);
+        let anchor = q.anchor_query.expect("a two-hop anchor");
+        assert_eq!(anchor.target, "chair");
+        assert_eq!(anchor.relation, Some(Relation::Farthest));
+        assert_eq!(anchor.anchors, ["bed"]);
+        assert!(anchor.anchor_query.is_none());
+        // Plain anchors stay plain, and "between" takes two of them.
+        assert!(p("the box on the table").anchor_query.is_none());
+        let between = p("the box between the chair and the table next to the bed");
+        assert!(between.anchor_query.is_none());
+        assert_eq!(between.anchors.len(), 2);
+    }
 
     fn p(text: &str) -> Query {
         parse(text).unwrap_or_else(|e| panic!("{text:?}: {e}"))

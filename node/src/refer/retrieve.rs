@@ -186,16 +186,16 @@ pub fn anchor_lists(scene: &ReferScene, anchors: &[Concept]) -> Vec<AnchorList> 
         .collect()
 }
 
-/// Score every node for `query` and keep the top `k`.
+/// Score every node for `query` and keep the top `k`; `anchor_lists` are the query's anchors
+/// ([`anchor_lists`] of its anchor concepts, or a two-hop anchor's answer).
 pub fn retrieve(
     scene: &ReferScene,
     query: &Query,
     target: &Concept,
-    anchors: &[Concept],
+    anchor_lists: Vec<AnchorList>,
     view: Option<&ViewPose>,
     k: usize,
 ) -> Retrieval {
-    let anchor_lists = anchor_lists(scene, anchors);
     let geometries = geometries(scene);
     let semantic: Vec<f32> = scene.nodes.iter().map(|n| target.score(n)).collect();
     let best_semantic = semantic.iter().copied().fold(0.0, f32::max);

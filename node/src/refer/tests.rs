@@ -316,3 +316,36 @@ fn a_target_the_map_does_not_hold_is_refused_saying_what_was_not_seen() {
     let message = got.map(|_| ()).unwrap_err().to_string();
     assert!(message.contains("no lamp has been seen"), "{message}");
 }
+
+#[test]
+fn a_two_hop_anchor_is_answered_first_and_its_answer_is_the_anchor() {
+    let mut scene = room();
+    // A third table beside chair 6 (the chair farthest from the lamp); chair 5, the best-named
+    // chair and the one a plain "chair" anchor would stand for, is nearest table 1.
+    scene
+        .nodes
+        .push(node(10, "table", [0.2, 3.2, 0.0], [1.0, 3.8, 0.75], BROWN));
+    let got = ask(
+        &scene,
+        "the table closest to the chair farthest from the lamp",
+    )
+    .unwrap();
+    assert_eq!(ids(&got, &scene), ["inst_000010"], "{}", got.trace);
+    assert!(
+        got.trace.contains("answered first: inst_000006"),
+        "{}",
+        got.trace
+    );
+    let plain = ask(&scene, "the table closest to the chair").unwrap();
+    assert_ne!(ids(&plain, &scene), ["inst_000010"], "{}", plain.trace);
+    // What the inner phrase cannot find, the answer says.
+    scene.nodes.retain(|n| n.label != "lamp");
+    let got = ask(
+        &scene,
+        "the table closest to the chair farthest from the lamp",
+    );
+    assert!(
+        matches!(got, Err(ReferError::Reason(ReasonError::NoAnchor(ref a))) if a == "lamp"),
+        "{got:?}"
+    );
+}

@@ -365,6 +365,7 @@ pub fn parse_decomposition(body: &str, expression: &str) -> Result<Query, VlmErr
         superlative,
         relation,
         anchors,
+        anchor_query: None,
     })
 }
 

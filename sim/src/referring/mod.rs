@@ -2,7 +2,8 @@
 //!
 //! Templates cover every relation of the Sr3D taxonomy the node answers (closest / farthest,
 //! above / below, on / supporting, left / right / front / behind in a named view, between),
-//! superlatives, colour attributes, function phrases and plural cardinality. An expression is
+//! superlatives, colour attributes, function phrases, plural cardinality and two-hop anchors
+//! ("the table closest to the chair farthest from the bed"). An expression is
 //! kept only if exactly its targets satisfy it with a margin, using the thresholds ReferIt3D's
 //! Sr3D generator uses: a 0.2 m gap for closest / farthest, 0.06 m vertical separation for above
 //! / below, support touching within 0.15 m, 0.3 m clearance for between, 10° for view-dependent
@@ -31,6 +32,7 @@ pub fn generate(scene: &Scene, views: &[ViewPose], half_fov_deg: f64) -> Vec<Exp
     };
     builder.class_and_cardinality();
     builder.distance_relations();
+    builder.two_hops();
     builder.support_relations();
     builder.between();
     builder.superlatives();

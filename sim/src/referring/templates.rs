@@ -139,6 +139,58 @@ impl<'a> Builder<'a> {
         }
     }
 
+    /// Two hops: "the T closest to the A farthest from the Z". A has several instances, so the
+    /// inner phrase picks one, by its distance to the only Z; both hops clear Sr3D's gap. One Z
+    /// (the first in class order that picks an A unambiguously) and one phrase per pair of T and A.
+    pub(super) fn two_hops(&mut self) {
+        const WORDS: [(Relation, &str); 2] = [
+            (Relation::Closest, "closest to"),
+            (Relation::Farthest, "farthest from"),
+        ];
+        let classes = self.classes();
+        for &anchor_class in &classes {
+            let anchors = self.of_class(anchor_class);
+            if anchors.len() < 2 {
+                continue;
+            }
+            let inner = classes.iter().find_map(|&far_class| {
+                let far = self.unique(far_class)?;
+                WORDS.iter().find_map(|&(relation, words)| {
+                    let picked = distance_pick(&anchors, far, relation)?;
+                    Some((
+                        picked,
+                        format!("the {anchor_class} {words} the {far_class}"),
+                        far.id,
+                    ))
+                })
+            });
+            let Some((anchor, inner_text, far_id)) = inner else {
+                continue;
+            };
+            for &target_class in &classes {
+                let candidates = self.of_class(target_class);
+                if target_class == anchor_class || candidates.len() < 2 {
+                    continue;
+                }
+                // One phrase per pair of classes (closest first), so two hops do not crowd the
+                // benchmark's other kinds.
+                let outer = WORDS.iter().find_map(|&(relation, words)| {
+                    distance_pick(&candidates, anchor, relation).map(|t| (t, words))
+                });
+                if let Some((target, words)) = outer {
+                    self.push(
+                        format!("the {target_class} {words} {inner_text}"),
+                        Relation::TwoHop,
+                        vec![target.id],
+                        target_class,
+                        vec![anchor.id, far_id],
+                        None,
+                    );
+                }
+            }
+        }
+    }
+
     /// Relations to any instance of an anchor class: on, supporting, above, below.
     pub(super) fn support_relations(&mut self) {
         for target_class in self.classes() {
@@ -471,4 +523,26 @@ impl<'a> Builder<'a> {
             }
         }
     }
+}
+
+/// The one of `candidates` closest to (or farthest from) `anchor`, when the runner-up is at
+/// least Sr3D's gap behind; never `anchor` itself.
+fn distance_pick<'g>(
+    candidates: &[&'g Geometry],
+    anchor: &Geometry,
+    relation: Relation,
+) -> Option<&'g Geometry> {
+    let mut by_distance: Vec<(f64, &'g Geometry)> = candidates
+        .iter()
+        .filter(|c| c.id != anchor.id)
+        .map(|c| ((c.center() - anchor.center()).length(), *c))
+        .collect();
+    if by_distance.len() < 2 {
+        return None;
+    }
+    by_distance.sort_by(|a, b| a.0.total_cmp(&b.0));
+    if relation == Relation::Farthest {
+        by_distance.reverse();
+    }
+    ((by_distance[0].0 - by_distance[1].0).abs() >= CLOSEST_GAP_M).then_some(by_distance[0].1)
 }
