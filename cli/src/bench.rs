@@ -95,6 +95,10 @@ pub enum BenchCommand {
         /// Times every setting runs, the settings taking turns (timings pooled).
         #[arg(long, default_value_t = 1)]
         rounds: usize,
+        /// Only these settings (comma-separated names, e.g. `default,min_cluster_15`): to confirm
+        /// a few on more scenes.
+        #[arg(long, value_delimiter = ',')]
+        only: Vec<String>,
         #[arg(long, default_value = "target/bench/sweep")]
         out: PathBuf,
     },
@@ -355,11 +359,22 @@ pub fn run(command: BenchCommand) -> Result<()> {
             scenes,
             first_index,
             rounds,
+            only,
             out,
         } => {
             let scenes = if quick { 1 } else { scenes };
+            let settings = crate::bench_sweep::chosen_settings(quick, &only)?;
             let files = crate::eval::split_scenes(&split, first_index, scenes)?;
-            crate::bench_sweep::sweep(&files, quick, rounds, &out)
+            let mut reproduce = format!(
+                "groupforward bench sweep --split {split} --scenes {scenes} --first-index {first_index} --rounds {rounds}"
+            );
+            if quick {
+                reproduce += " --quick";
+            }
+            if !only.is_empty() {
+                reproduce += &format!(" --only {}", only.join(","));
+            }
+            crate::bench_sweep::sweep(&files, &settings, rounds, &reproduce, &out)
         }
         BenchCommand::Soak {
             quick,

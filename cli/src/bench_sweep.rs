@@ -105,6 +105,23 @@ pub fn settings(quick: bool) -> Vec<Setting> {
     all
 }
 
+/// [`settings`], or those of them `only` names (all when it is empty); a name the sweep does
+/// not know is an error that lists the known ones.
+pub fn chosen_settings(quick: bool, only: &[String]) -> Result<Vec<Setting>> {
+    let all = settings(quick);
+    if only.is_empty() {
+        return Ok(all);
+    }
+    let known: Vec<&str> = all.iter().map(|s| s.name.as_str()).collect();
+    if let Some(unknown) = only.iter().find(|n| !known.contains(&n.as_str())) {
+        anyhow::bail!(
+            "no sweep setting {unknown:?}; the settings are {}",
+            known.join(", ")
+        );
+    }
+    Ok(all.into_iter().filter(|s| only.contains(&s.name)).collect())
+}
+
 /// One setting's result.
 struct Point {
     setting: Setting,
@@ -125,9 +142,15 @@ impl Point {
 /// Run every setting on `files`, `rounds` times in turn (a round replays every setting once:
 /// timings of all rounds are pooled, so drift of the machine falls on every setting alike; the
 /// maps are the same each round and are scored from the first).
-pub fn sweep(files: &[SceneFile], quick: bool, rounds: usize, out: &Path) -> Result<()> {
+/// `reproduce`: the command line that reruns it, for the report.
+pub fn sweep(
+    files: &[SceneFile],
+    settings: &[Setting],
+    rounds: usize,
+    reproduce: &str,
+    out: &Path,
+) -> Result<()> {
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    let settings = settings(quick);
     // Every setting replays the same recordings (rendering once, not once per setting).
     let bar = progress_bar(files.len() as u64, "recording scenes");
     let mut recorded: Vec<RecordedScene> = Vec::new();
@@ -215,7 +238,7 @@ pub fn sweep(files: &[SceneFile], quick: bool, rounds: usize, out: &Path) -> Res
     let threads = rayon::current_num_threads();
     let rounds = rounds.max(1);
     std::fs::write(out.join("sweep.csv"), csv(&points, rounds))?;
-    let md = markdown(&points, files.len(), threads, quick, rounds);
+    let md = markdown(&points, files.len(), threads, rounds, reproduce);
     std::fs::write(out.join("sweep.md"), &md)?;
     pareto_chart(&out.join("pareto.svg"), &points)?;
     print!("{md}");
@@ -289,7 +312,13 @@ fn pareto_front(points: &[Point]) -> Vec<usize> {
     front
 }
 
-fn markdown(points: &[Point], scenes: usize, threads: usize, quick: bool, rounds: usize) -> String {
+fn markdown(
+    points: &[Point],
+    scenes: usize,
+    threads: usize,
+    rounds: usize,
+    reproduce: &str,
+) -> String {
     let front = pareto_front(points);
     let mut md = format!(
         "Accuracy against time: each setting replays the same {scenes} recorded benchmark scene(s) through the node's stages (every window, as `eval map` does) and scores the final map. Window = model pass to map update, {threads} threads; p50 / p99 over all windows of {rounds} round(s), the settings taking turns; windows = per round. Settings with more than 4 views take keyframes proportionally closer together (a window spans the same stretch of trajectory, seen by more views). Pareto-optimal settings (no other is both faster and more accurate on recall@0.25) are marked *.\n\n| setting | views | HDBSCAN subsample | min cluster / samples | model | windows | window p50 / p99 (ms) | model | group | semantics | fusion | recall@0.25 | recall@0.5 | precision | duplicates | names | id switches / 100 |\n| --- | ---: | ---: | ---: | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |\n"
@@ -327,15 +356,7 @@ fn markdown(points: &[Point], scenes: usize, threads: usize, quick: bool, rounds
             s.id_switches_per_100_sightings,
         ));
     }
-    md.push_str(&format!(
-        "\nReproduce: `groupforward bench sweep{}{} --out DIR` (or `make sweep`).\n",
-        if quick { " --quick" } else { "" },
-        if rounds > 1 {
-            format!(" --rounds {rounds}")
-        } else {
-            String::new()
-        }
-    ));
+    md.push_str(&format!("\nReproduce: `{reproduce} --out DIR`.\n"));
     md
 }
 
