@@ -87,6 +87,13 @@ pub fn settings(quick: bool) -> Vec<Setting> {
             s.min_cluster_size = 15;
             s.min_samples = 5;
         }),
+        // The same subsample at the density min cluster 15 allows on the default's: small objects
+        // kept, map ids less stable (benchmark 100-129: node/doc/bench/sweep_grouping_100-129.md).
+        Setting::with("subsample_8k_min_8", |s| {
+            s.max_cluster_points = 8_192;
+            s.min_cluster_size = 8;
+            s.min_samples = 5;
+        }),
         Setting::with("subsample_40k", |s| s.max_cluster_points = 40_000),
         Setting::with("min_cluster_15", |s| s.min_cluster_size = 15),
         Setting::with("min_cluster_60", |s| s.min_cluster_size = 60),

@@ -68,13 +68,22 @@ fn the_quick_sweep_writes_one_scored_and_timed_row_per_setting_and_the_pareto_ch
 fn a_setting_the_sweep_does_not_know_is_refused_with_the_known_ones_named() {
     let out = tempfile::tempdir().expect("a temporary directory");
     let run = Command::new(env!("CARGO_BIN_EXE_groupforward"))
-        .args(["bench", "sweep", "--only", "default,min_cluster_16", "--out"])
+        .args([
+            "bench",
+            "sweep",
+            "--only",
+            "default,min_cluster_16",
+            "--out",
+        ])
         .arg(out.path())
         .output()
         .expect("the groupforward binary runs");
     let stderr = String::from_utf8_lossy(&run.stderr);
     assert!(!run.status.success());
-    assert!(stderr.contains("no sweep setting \"min_cluster_16\""), "{stderr}");
+    assert!(
+        stderr.contains("no sweep setting \"min_cluster_16\""),
+        "{stderr}"
+    );
     assert!(stderr.contains("min_cluster_15"), "{stderr}");
     assert!(!out.path().join("sweep.csv").exists());
 }
