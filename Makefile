@@ -89,6 +89,8 @@ train-data: build
 	./target/debug/groupforward sim dataset --split val --samples 100 --out train/data/val
 	./target/debug/groupforward sim dataset --split val --samples 300 --first-index 100 --out train/data/val_selection
 	./target/debug/groupforward sim dataset --split val --samples 400 --first-index 400 --out train/data/val_test
+	./target/debug/groupforward sim dataset --split layouts_train --samples 1000 --out train/data/layouts_train
+	python3 train/merge_datasets.py train/data/train_layouts train/data/train train/data/layouts_train
 
 # Checks of the training code's geometry (CPU, seconds); like training, not part of CI (torch is ~3 GB).
 train-test: train-setup

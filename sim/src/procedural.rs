@@ -26,10 +26,19 @@ pub enum Split {
     /// chairs lined up at tables, several objects on one surface, objects in corners. A test
     /// split for the map's neighbours (its own seeds).
     Layouts,
+    /// The `layouts` generator with seeds of its own, for training data: the model may learn
+    /// what the `layouts` test split asks without seeing its rooms.
+    LayoutsTrain,
 }
 
 impl Split {
-    pub const ALL: [Split; 4] = [Split::Train, Split::Val, Split::Benchmark, Split::Layouts];
+    pub const ALL: [Split; 5] = [
+        Split::Train,
+        Split::Val,
+        Split::Benchmark,
+        Split::Layouts,
+        Split::LayoutsTrain,
+    ];
 
     pub fn name(self) -> &'static str {
         match self {
@@ -37,6 +46,7 @@ impl Split {
             Split::Val => "val",
             Split::Benchmark => "benchmark",
             Split::Layouts => "layouts",
+            Split::LayoutsTrain => "layouts_train",
         }
     }
 
@@ -54,6 +64,7 @@ impl Split {
             Split::Val => 1,
             Split::Benchmark => 2,
             Split::Layouts => 3,
+            Split::LayoutsTrain => 4,
         };
         (index < Self::CAPACITY).then(|| base * Self::CAPACITY + index)
     }
@@ -174,7 +185,7 @@ pub fn generate_with(split: Split, index: u64, options: &ProceduralOptions) -> O
     };
 
     match split {
-        Split::Layouts => place_rows(&mut file, &mut rng, size),
+        Split::Layouts | Split::LayoutsTrain => place_rows(&mut file, &mut rng, size),
         _ => place_floor_objects(&mut file, &mut rng, size),
     }
     place_chairs_at_tables(&mut file, &mut rng);
