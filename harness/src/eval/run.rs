@@ -379,9 +379,10 @@ fn listed_instances(map: &SceneMap, models: &WindowModels) -> Vec<ListedInstance
     let vocabulary = models.vocabulary.as_ref();
     object_list(map, vocabulary, |i, box_like| i.fitted(box_like))
         .into_iter()
-        .map(|(i, bbox)| {
+        .map(|listed| {
+            let (i, bbox) = (listed.instance, listed.bbox);
             let (name, name_score) = vocabulary
-                .and_then(|v| i.hypotheses(v, 1).into_iter().next())
+                .and_then(|v| v.ranked(&listed.names, 1).into_iter().next())
                 .unwrap_or_default();
             ListedInstance {
                 id: i.id.clone(),

@@ -71,14 +71,8 @@ impl Instance {
         OrientedBox::principal_length(&self.gaussians.means, DEFAULT_TRIM)
     }
 
-    /// Its names, best first, with their scores: its prototype's, less the names whose objects
-    /// are never as long as it is ([`Vocabulary::hypotheses_given`]).
-    pub fn hypotheses(&self, vocabulary: &Vocabulary, count: usize) -> Vec<(String, f32)> {
-        vocabulary.hypotheses_given(&self.prototype, Some(self.length_m()), count)
-    }
-
-    /// p(name) for every phrase of `vocabulary`, in its order, as [`Instance::hypotheses`] ranks
-    /// them.
+    /// p(name) for every phrase of `vocabulary`, in its order: its prototype's, less the names
+    /// whose objects are never as long as it is ([`Vocabulary::probabilities_given`]).
     pub fn name_probabilities(&self, vocabulary: &Vocabulary) -> Vec<f32> {
         vocabulary.probabilities_given(&self.prototype, Some(self.length_m()))
     }

@@ -318,12 +318,12 @@ fn map_walls<'a>(
 /// The map's object list, as the node publishes it, the evaluation scores it and queries pick
 /// from it: instances the vocabulary lists (structure and small unsure pieces left out:
 /// [`Vocabulary::is_listed`]), each with its published box ([`published_box`] of the box `fit`
-/// gives it), less those whose box is a patch of the room itself.
+/// gives it) and its names, less those whose box is a patch of the room itself.
 pub fn object_list<'a>(
     map: &'a SceneMap,
     vocabulary: Option<&Vocabulary>,
     mut fit: impl FnMut(&Instance, bool) -> Fitted,
-) -> Vec<(&'a Instance, OrientedBox)> {
+) -> Vec<Listed<'a>> {
     let walls = std::cell::OnceCell::new();
     // Without a vocabulary nothing is named, so no prior applies.
     let no_priors = ClassPriors::default();
@@ -332,9 +332,13 @@ pub fn object_list<'a>(
         .iter()
         .filter(|i| vocabulary.is_none_or(|v| v.is_listed(&i.prototype, i.gaussians.len())))
         .filter_map(|i| {
-            // The best name, read once: three completions ask for it.
+            // Named once (the instance's length is measured for it): three completions, the
+            // published hypotheses and referring read these names.
+            let names = vocabulary
+                .map(|v| i.name_probabilities(v))
+                .unwrap_or_default();
             let name = vocabulary
-                .and_then(|v| i.hypotheses(v, 1).into_iter().next())
+                .and_then(|v| v.ranked(&names, 1).into_iter().next())
                 .map(|(name, _)| name);
             let name = name.as_deref();
             let box_like = name.is_some_and(|n| priors.typical_depth(n).is_some());
@@ -355,10 +359,25 @@ pub fn object_list<'a>(
             });
             completed_face.or_else(|| publish(fitted.points)).map(|b| {
                 let stands = name.is_some_and(|n| priors.stands_on_floor(n));
-                (i, standing_on_floor(b, stands, &walls, map, vocabulary))
+                Listed {
+                    instance: i,
+                    bbox: standing_on_floor(b, stands, &walls, map, vocabulary),
+                    names,
+                }
             })
         })
         .collect()
+}
+
+/// One instance of the object list.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Listed<'a> {
+    pub instance: &'a Instance,
+    /// Its published box.
+    pub bbox: OrientedBox,
+    /// p(name) for every phrase of the vocabulary, in its order ([`Instance::name_probabilities`];
+    /// empty without a vocabulary).
+    pub names: Vec<f32>,
 }
 
 /// Whether `completed` is the vertical face `surface` completed behind it (back to a wall or
@@ -631,7 +650,7 @@ mod tests {
         let points_only = object_list(&map, Some(&vocabulary), |i, _| i.oriented_box().into());
         let thin = |b: &OrientedBox| b.size.x.min(b.size.y);
         assert_eq!((with_surfaces.len(), points_only.len()), (3, 3));
-        let (cabinet, cabinet_points) = (with_surfaces[0].1, points_only[0].1);
+        let (cabinet, cabinet_points) = (with_surfaces[0].bbox, points_only[0].bbox);
         // The noisy slab is too deep for a face and stays as deep as the noise ...
         assert!(
             (0.15..0.4).contains(&thin(&cabinet_points)),
@@ -643,9 +662,13 @@ mod tests {
         assert!(cabinet.centre.is_finite() && cabinet.size.is_finite());
         // The plant's box is its points' box: no completion, no plane fitted over it; so is
         // the flat face of a name with no typical depth (no furniture a face stands for).
-        assert_eq!(with_surfaces[1].1, points_only[1].1);
-        assert_eq!(with_surfaces[2].1, points_only[2].1);
-        assert!(thin(&with_surfaces[2].1) < 0.4, "{:?}", with_surfaces[2].1);
+        assert_eq!(with_surfaces[1].bbox, points_only[1].bbox);
+        assert_eq!(with_surfaces[2].bbox, points_only[2].bbox);
+        assert!(
+            thin(&with_surfaces[2].bbox) < 0.4,
+            "{:?}",
+            with_surfaces[2].bbox
+        );
     }
 
     #[test]

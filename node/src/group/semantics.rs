@@ -346,11 +346,13 @@ impl Vocabulary {
         length_m: Option<f64>,
         count: usize,
     ) -> Vec<(String, f32)> {
-        let mut ranked: Vec<(usize, f32)> = self
-            .probabilities_given(prototype, length_m)
-            .into_iter()
-            .enumerate()
-            .collect();
+        self.ranked(&self.probabilities_given(prototype, length_m), count)
+    }
+
+    /// The `count` phrases `probabilities` (one per phrase, in the vocabulary's order) rank
+    /// highest, best first (ties: the earlier phrase), with their scores.
+    pub fn ranked(&self, probabilities: &[f32], count: usize) -> Vec<(String, f32)> {
+        let mut ranked: Vec<(usize, f32)> = probabilities.iter().copied().enumerate().collect();
         ranked.sort_by(|a, b| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0)));
         ranked
             .into_iter()

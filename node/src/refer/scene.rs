@@ -102,23 +102,21 @@ impl ReferScene {
                 (r.depth, labels)
             })
             .unzip();
-        let listed: HashMap<String, OrientedBox> = object_list(&map, vocabulary, |i, box_like| {
-            boxes
-                .get(&i.id)
-                .map_or_else(|| i.fitted(box_like), |b| (*b).into())
-        })
-        .into_iter()
-        .map(|(i, b)| (i.id.clone(), b))
-        .collect();
+        let mut listed: HashMap<String, (OrientedBox, Vec<f32>)> =
+            object_list(&map, vocabulary, |i, box_like| {
+                boxes
+                    .get(&i.id)
+                    .map_or_else(|| i.fitted(box_like), |b| (*b).into())
+            })
+            .into_iter()
+            .map(|l| (l.instance.id.clone(), (l.bbox, l.names)))
+            .collect();
         let mut nodes = Vec::new();
         for (instance, node) in map.instances.iter().zip(&graph.nodes) {
             // What the object list leaves out (structure, small unsure pieces) is no candidate.
-            let Some(&bbox) = listed.get(&instance.id) else {
+            let Some((bbox, names)) = listed.remove(&instance.id) else {
                 continue;
             };
-            let names = vocabulary
-                .map(|v| instance.name_probabilities(v))
-                .unwrap_or_default();
             let best = names
                 .iter()
                 .enumerate()

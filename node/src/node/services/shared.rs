@@ -127,10 +127,11 @@ pub fn instance_messages_cached(
     });
     let messages = listed
         .into_iter()
-        .map(|(i, b)| Instance {
+        .map(|listed| (listed.instance, listed.bbox, listed.names))
+        .map(|(i, b, names)| Instance {
             id: i.id.clone(),
             hypotheses: vocabulary
-                .map(|v| i.hypotheses(v, hypotheses))
+                .map(|v| v.ranked(&names, hypotheses))
                 .unwrap_or_default()
                 .into_iter()
                 .map(|(class_id, score)| ObjectHypothesis {
