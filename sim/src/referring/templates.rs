@@ -7,6 +7,12 @@ use super::relations::{
 };
 use crate::library;
 
+/// The distance relations and their words.
+const DISTANCE_WORDS: [(Relation, &str); 2] = [
+    (Relation::Closest, "closest to"),
+    (Relation::Farthest, "farthest from"),
+];
+
 /// A superlative: relation, word, key, required gap in the key, and whether the largest wins.
 type Superlative = (Relation, &'static str, fn(&Geometry) -> f64, f64, bool);
 
@@ -109,31 +115,17 @@ impl<'a> Builder<'a> {
                 if anchor_class == target_class {
                     continue;
                 }
-                let mut by_distance: Vec<(f64, u16)> = candidates
-                    .iter()
-                    .map(|c| ((c.center() - anchor.center()).length(), c.id))
-                    .collect();
-                by_distance.sort_by(|a, b| a.0.total_cmp(&b.0));
-                let n = by_distance.len();
-                if by_distance[1].0 - by_distance[0].0 >= CLOSEST_GAP_M {
-                    self.push(
-                        format!("the {target_class} closest to the {anchor_class}"),
-                        Relation::Closest,
-                        vec![by_distance[0].1],
-                        target_class,
-                        vec![anchor.id],
-                        None,
-                    );
-                }
-                if by_distance[n - 1].0 - by_distance[n - 2].0 >= CLOSEST_GAP_M {
-                    self.push(
-                        format!("the {target_class} farthest from the {anchor_class}"),
-                        Relation::Farthest,
-                        vec![by_distance[n - 1].1],
-                        target_class,
-                        vec![anchor.id],
-                        None,
-                    );
+                for (relation, words) in DISTANCE_WORDS {
+                    if let Some(target) = distance_pick(&candidates, &anchor, relation) {
+                        self.push(
+                            format!("the {target_class} {words} the {anchor_class}"),
+                            relation,
+                            vec![target.id],
+                            target_class,
+                            vec![anchor.id],
+                            None,
+                        );
+                    }
                 }
             }
         }
@@ -143,10 +135,6 @@ impl<'a> Builder<'a> {
     /// inner phrase picks one, by its distance to the only Z; both hops clear Sr3D's gap. One Z
     /// (the first in class order that picks an A unambiguously) and one phrase per pair of T and A.
     pub(super) fn two_hops(&mut self) {
-        const WORDS: [(Relation, &str); 2] = [
-            (Relation::Closest, "closest to"),
-            (Relation::Farthest, "farthest from"),
-        ];
         let classes = self.classes();
         for &anchor_class in &classes {
             let anchors = self.of_class(anchor_class);
@@ -155,7 +143,7 @@ impl<'a> Builder<'a> {
             }
             let inner = classes.iter().find_map(|&far_class| {
                 let far = self.unique(far_class)?;
-                WORDS.iter().find_map(|&(relation, words)| {
+                DISTANCE_WORDS.iter().find_map(|&(relation, words)| {
                     let picked = distance_pick(&anchors, far, relation)?;
                     Some((
                         picked,
@@ -174,7 +162,7 @@ impl<'a> Builder<'a> {
                 }
                 // One phrase per pair of classes (closest first), so two hops do not crowd the
                 // benchmark's other kinds.
-                let outer = WORDS.iter().find_map(|&(relation, words)| {
+                let outer = DISTANCE_WORDS.iter().find_map(|&(relation, words)| {
                     distance_pick(&candidates, anchor, relation).map(|t| (t, words))
                 });
                 if let Some((target, words)) = outer {
