@@ -198,7 +198,9 @@ pub fn eval_refer(
         let objects = run.objects.clone();
         let sim =
             Simulation::new(file.clone()).map_err(|e| anyhow::anyhow!("{}: {e}", file.name))?;
-        let views = held_out_views(&sim, &run.map);
+        // Masks are cut by the held-out view's depth only when the node was given depth.
+        let with_depth = config.cameras.iter().any(|c| c.depth_topic.is_some());
+        let views = held_out_views(&sim, &run.map, with_depth);
         let referrer = Referrer {
             vocabulary: models.vocabulary.clone(),
             encoder: encoder.clone(),

@@ -57,6 +57,18 @@ pub struct Keyframe {
     pub world_from_camera: Rigid,
 }
 
+/// A view's depth as its sensor measured it, at the sensor's resolution: kept for the newest
+/// views so answers' masks can be cut by it ([`crate::refer::masks`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct MeasuredDepth {
+    /// The view, with the sensor's camera (its resolution and distortion).
+    pub keyframe: Keyframe,
+    /// Metres along the optical axis, row-major; NaN or <= 0 where there is no reading.
+    pub depth: Vec<f32>,
+    /// Its range noise (σ at 1 m), as measured for fusion.
+    pub noise_at_1m: Option<f32>,
+}
+
 /// A window view as fusion sees it: the keyframe and the depth the window observed there (sensor
 /// or rendered), used to decide which persistent instances it should have seen.
 #[derive(Debug, Clone, PartialEq)]

@@ -704,4 +704,63 @@ mod tests {
         assert_eq!(detection.bbox.size, instances[0].size);
         assert_eq!(instance_array(&header, &instances).instances, instances);
     }
+
+    #[test]
+    fn an_answer_s_masks_are_at_the_sensor_s_resolution_where_the_snapshot_kept_its_depth() {
+        use crate::frame::MeasuredDepth;
+        use crate::refer::{parse::parse, reasoner::Choice, response::response, Answer};
+        let (scene, _) = scene_of(map_of(vec![wall(-0.6, -0.02, 2.0), wall(0.02, 0.6, 2.0)]));
+        // The newest keyframe's sensor measured both walls at 2 m, at twice the model's size.
+        let sensor = Keyframe {
+            stamp_nanos: 6,
+            camera: Camera::from_fov(128, 96, 1.2).unwrap(),
+            world_from_camera: Rigid::default(),
+        };
+        let measured = std::sync::Arc::new(MeasuredDepth {
+            keyframe: sensor,
+            depth: vec![2.0; 128 * 96],
+            noise_at_1m: Some(0.001),
+        });
+        let scene = scene.with_measured(&[measured]);
+        let right = scene
+            .nodes
+            .iter()
+            .position(|n| n.id == "inst_000002")
+            .unwrap();
+        let answer = Answer {
+            query: parse("the wall").unwrap(),
+            chosen: vec![Choice {
+                index: right,
+                confidence: 1.0,
+            }],
+            candidates: Vec::new(),
+            reasoner_used: "builtin".into(),
+            trace: String::new(),
+            view: None,
+        };
+        let gaussians = vec![scene.gaussians("inst_000002")];
+        let reply = response(&answer, &scene, &gaussians, "map", None);
+        let sizes: Vec<(i64, u32, u32)> = reply
+            .view_masks
+            .iter()
+            .map(|m| (m.header.stamp.as_nanos(), m.mask.width, m.mask.height))
+            .collect();
+        assert_eq!(
+            sizes,
+            vec![(6, 128, 96), (5, 64, 48)],
+            "measured, then splats"
+        );
+        let labelled = |x: usize| {
+            let o = 2 * (48 * 128 + x);
+            u16::from_le_bytes([
+                reply.view_masks[0].mask.data[o],
+                reply.view_masks[0].mask.data[o + 1],
+            ])
+        };
+        assert_eq!(
+            (labelled(40), labelled(88)),
+            (0, 1),
+            "the right wall, not the left"
+        );
+    }
 }

@@ -102,7 +102,7 @@ fn the_demo_scene_s_map_finds_its_objects_and_answers_its_referring_expressions(
     // came out right by its place.)
     let map = std::mem::take(&mut run.map);
     let sim = groupforward_sim::simulation::Simulation::new(scene.clone()).unwrap();
-    let views = held_out_views(&sim, &map);
+    let views = held_out_views(&sim, &map, true);
     let referrer = Referrer {
         vocabulary: window_models.vocabulary.clone(),
         encoder: window_models

@@ -17,38 +17,41 @@ use super::score::TruthObject;
 use groupforward::frame::Keyframe;
 use groupforward::graph::SceneMap;
 use groupforward::group::semantics::Vocabulary;
-use groupforward::model::reconstruction::resized_camera;
 use groupforward::model::text::TextEncoder;
 use groupforward::node::services::{handle_refer, Shared};
 use groupforward::recon::boxes::OrientedBox;
 use groupforward::recon::camera::Camera;
+use groupforward::recon::depth_noise::noise_at_1m;
 use groupforward::recon::gaussians::Gaussians;
 use groupforward::recon::raster::{render, RasterSettings};
 use groupforward::recon::Rigid;
-use groupforward::refer::response::{label_image, pose_box};
+use groupforward::refer::masks::{answer_labels, AnswerVolume};
+use groupforward::refer::response::pose_box;
 use groupforward::refer::ReferSection;
 use groupforward_sim::simulation::Simulation;
 
 /// An answer box farther than this from every object (and overlapping none) names no object.
 const MATCH_DISTANCE_M: f64 = 0.5;
 
-/// Held-out views are rendered at this width (height by the camera's aspect).
-pub const HELD_OUT_WIDTH: usize = 160;
 /// Every this many frames of the trajectory, offset by half of it from the first frame.
 pub const HELD_OUT_EVERY: usize = 10;
 
-/// A view of the scene for scoring masks: a camera pose and intrinsics (at reduced resolution),
-/// the ground-truth instance ids seen there, and the map's depth rendered there (occlusion).
+/// A view of the scene for scoring masks, at the sensor's resolution: a camera pose and
+/// intrinsics, the ground-truth instance ids seen there, the depth the sensor measured there
+/// (`None`: the node was run without depth) with its range noise, and the map's depth rendered
+/// there (the splats' occlusion cut).
 #[derive(Debug, Clone, PartialEq)]
 pub struct HeldOutView {
     pub keyframe: Keyframe,
     pub truth: Vec<u16>,
+    pub measured_depth: Option<Vec<f32>>,
+    pub noise_at_1m: Option<f32>,
     pub scene_depth: Vec<f32>,
 }
 
 /// Views of `sim`'s first camera every [`HELD_OUT_EVERY`] frames starting half a stride in,
-/// (pinhole cameras only), with the ground truth resampled to the render size and `map`'s depth.
-pub fn held_out_views(sim: &Simulation, map: &SceneMap) -> Vec<HeldOutView> {
+/// (pinhole cameras only), with `map`'s depth rendered there and, `with_depth`, the sensor's.
+pub fn held_out_views(sim: &Simulation, map: &SceneMap, with_depth: bool) -> Vec<HeldOutView> {
     let mut all = Gaussians::with_dims(0, 0);
     for instance in &map.instances {
         all.extend_geometry(&instance.gaussians);
@@ -62,18 +65,7 @@ pub fn held_out_views(sim: &Simulation, map: &SceneMap) -> Vec<HeldOutView> {
                 return None;
             }
             let p = view.pinhole;
-            let full = Camera::pinhole(p.width, p.height, p.fx, p.fy, p.cx, p.cy).ok()?;
-            let height = (HELD_OUT_WIDTH as f64 * f64::from(p.height) / f64::from(p.width)).round();
-            let camera = resized_camera(&full, HELD_OUT_WIDTH, height as usize);
-            let (w, h) = (camera.width as usize, camera.height as usize);
-            let truth = (0..w * h)
-                .map(|k| {
-                    let (x, y) = (k % w, k / w);
-                    let sx = (x * p.width as usize / w).min(p.width as usize - 1);
-                    let sy = (y * p.height as usize / h).min(p.height as usize - 1);
-                    view.truth.instance[sy * p.width as usize + sx]
-                })
-                .collect();
+            let camera = Camera::pinhole(p.width, p.height, p.fx, p.fy, p.cx, p.cy).ok()?;
             let keyframe = Keyframe {
                 stamp_nanos: (frame.stamp_secs * 1e9) as i64,
                 camera,
@@ -89,25 +81,53 @@ pub fn held_out_views(sim: &Simulation, map: &SceneMap) -> Vec<HeldOutView> {
             )
             .map(|r| r.depth)
             .unwrap_or_default();
+            let measured_depth = with_depth.then(|| view.sensor_depth().to_vec());
+            let noise_at_1m = measured_depth
+                .as_deref()
+                .and_then(|d| noise_at_1m([(d, p.width as usize)]));
             Some(HeldOutView {
                 keyframe,
-                truth,
+                truth: view.truth.instance.clone(),
+                measured_depth,
+                noise_at_1m,
                 scene_depth,
             })
         })
         .collect()
 }
 
-/// Mean IoU, over the held-out views that see a target, of the answer's rendered mask against
-/// the targets' ground-truth mask (an answer without instances scores 0 there).
-pub fn referring_iou(answer: &[&Gaussians], targets: &[u16], views: &[HeldOutView]) -> Option<f64> {
+/// Mean IoU, over the held-out views that see a target, of the answer's mask (`chosen`: indices
+/// into `instances`, the whole map) against the targets' ground-truth mask (an answer without
+/// instances scores 0 there). Masks are the node's: cut by the measured depth where the view has
+/// it, the rendered splats elsewhere.
+pub fn referring_iou(
+    instances: &[&Gaussians],
+    chosen: &[usize],
+    targets: &[u16],
+    views: &[HeldOutView],
+) -> Option<f64> {
+    let answer: Vec<&Gaussians> = chosen
+        .iter()
+        .filter_map(|&k| instances.get(k).copied())
+        .collect();
+    let volume = AnswerVolume::new(instances, chosen);
     let mut ious = Vec::new();
     for view in views {
         let truth: Vec<bool> = view.truth.iter().map(|id| targets.contains(id)).collect();
         if !truth.iter().any(|t| *t) {
             continue;
         }
-        let predicted = label_image(answer, &view.keyframe, &view.scene_depth);
+        let measured = view
+            .measured_depth
+            .as_deref()
+            .map(|d| (d, view.noise_at_1m));
+        let predicted = answer_labels(
+            &answer,
+            volume.as_ref(),
+            &view.keyframe,
+            measured,
+            &view.scene_depth,
+        );
         let (mut inter, mut union) = (0usize, 0usize);
         for (p, t) in predicted.iter().zip(&truth) {
             let p = *p > 0;
@@ -310,19 +330,16 @@ pub fn ask_scene(
                 .filter_map(|c| box_of(&c.id, &shared))
                 .map(|b| matched_object(&b, objects).0)
                 .collect();
-            let gaussians: Vec<Gaussians> = shared
-                .lock()
-                .map(|s| {
-                    response
-                        .instance_ids
-                        .iter()
-                        .filter_map(|id| s.map.instances.iter().find(|i| &i.id == id))
-                        .map(|i| i.gaussians.clone())
-                        .collect()
-                })
-                .unwrap_or_default();
-            let refs: Vec<&Gaussians> = gaussians.iter().collect();
-            let mask_iou = referring_iou(&refs, &e.targets, views);
+            let mask_iou = shared.lock().ok().and_then(|s| {
+                let instances: Vec<&Gaussians> =
+                    s.map.instances.iter().map(|i| &i.gaussians).collect();
+                let chosen: Vec<usize> = response
+                    .instance_ids
+                    .iter()
+                    .filter_map(|id| s.map.instances.iter().position(|i| &i.id == id))
+                    .collect();
+                referring_iou(&instances, &chosen, &e.targets, views)
+            });
             let iou = match (&e.targets[..], &matches[..]) {
                 ([target], [(id, iou)]) if id == target => *iou,
                 _ => 0.0,

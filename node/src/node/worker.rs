@@ -9,7 +9,7 @@ use std::thread::JoinHandle;
 
 use super::services::Shared;
 use crate::config::Config;
-use crate::frame::SyncedFrame;
+use crate::frame::{Keyframe, MeasuredDepth, SyncedFrame};
 use crate::outputs::ViewSource;
 use crate::timing::Stage;
 use crate::window::WindowModels;
@@ -174,6 +174,26 @@ pub(super) fn start_window_worker(
                             frame_id: f.frame_id.clone(),
                         })
                         .collect();
+                    // The views' sensor depth, kept for the masks of answers in them.
+                    let measured: Vec<Arc<MeasuredDepth>> = frames
+                        .iter()
+                        .zip(&output.views)
+                        .filter_map(|(f, v)| {
+                            // Registered to the colour camera, as the ingest checks.
+                            let depth = f.depth.as_ref().filter(|d| {
+                                (d.width, d.height) == (f.camera.width, f.camera.height)
+                            })?;
+                            Some(Arc::new(MeasuredDepth {
+                                keyframe: Keyframe {
+                                    stamp_nanos: f.stamp_nanos,
+                                    camera: f.camera,
+                                    world_from_camera: f.world_from_camera,
+                                },
+                                depth: depth.metres.clone(),
+                                noise_at_1m: v.depth_noise_at_1m,
+                            }))
+                        })
+                        .collect();
                     // Fused into a copy without the lock (queries, publishing and services
                     // go on meanwhile), then swapped in unless the map was replaced meanwhile.
                     let Ok((mut map, generation, mut boxes, hypotheses)) = shared.lock().map(|s| {
@@ -209,6 +229,7 @@ pub(super) fn start_window_worker(
                                 continue;
                             }
                             s.view_sources = sources;
+                            s.measured_views = measured;
                             super::services::snapshot_due(&mut s);
                             let millis = times.total().as_millis() as u64;
                             times.0.push((Stage::Window, times.total()));

@@ -9,6 +9,7 @@
 
 pub mod concepts;
 pub mod evidence;
+pub mod masks;
 pub mod parse;
 pub mod reasoner;
 pub mod response;

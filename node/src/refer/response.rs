@@ -10,6 +10,7 @@ use groupforward_msgs::sensor_msgs::{Image, PointCloud2, PointField};
 use groupforward_msgs::std_msgs::Header;
 use groupforward_msgs::vision_msgs::BoundingBox3D;
 
+use super::masks::{answer_labels, resampled, AnswerVolume};
 use super::scene::ReferScene;
 use super::Answer;
 use crate::frame::Keyframe;
@@ -178,6 +179,38 @@ pub fn mono16(header: Header, w: u32, h: u32, labels: &[u16]) -> Image {
     }
 }
 
+/// The map's points around the instances `ids` of `scene`'s map, for masks cut by measured depth.
+fn answer_volume(scene: &ReferScene, ids: &[String]) -> Option<AnswerVolume> {
+    let instances: Vec<&Gaussians> = scene.map.instances.iter().map(|i| &i.gaussians).collect();
+    let chosen: Vec<usize> = ids
+        .iter()
+        .filter_map(|id| scene.map.instances.iter().position(|i| &i.id == id))
+        .collect();
+    AnswerVolume::new(&instances, &chosen)
+}
+
+/// The answer's labels in the snapshot's `k`-th keyframe: at the sensor's resolution, cut by its
+/// depth, where the snapshot kept it; otherwise its splats at the keyframe's.
+fn keyframe_labels<'s>(
+    scene: &'s ReferScene,
+    k: usize,
+    keyframe: &'s Keyframe,
+    answer: &[&Gaussians],
+    volume: Option<&AnswerVolume>,
+) -> (&'s Keyframe, Vec<u16>) {
+    let scene_depth = scene.depths.get(k).map_or(&[][..], Vec::as_slice);
+    match scene.measured.get(k).and_then(Option::as_ref) {
+        Some(m) => {
+            let size = |kf: &Keyframe| (kf.camera.width as usize, kf.camera.height as usize);
+            let reference = resampled(scene_depth, size(keyframe), size(&m.keyframe));
+            let measured = Some((m.depth.as_slice(), m.noise_at_1m));
+            let labels = answer_labels(answer, volume, &m.keyframe, measured, &reference);
+            (&m.keyframe, labels)
+        }
+        None => (keyframe, label_image(answer, keyframe, scene_depth)),
+    }
+}
+
 /// The `Refer` response for `answer` on `scene`; `gaussians` are the chosen instances' (in the
 /// answer's order, from the live map), `novel` an extra view to render masks into.
 pub fn response(
@@ -203,11 +236,12 @@ pub fn response(
         .zip(gaussians)
         .map(|(n, g)| (numeric_id(&n.id), g))
         .collect();
+    let volume = answer_volume(scene, &ids);
     let mut view_masks: Vec<InstanceMasks> = scene
         .keyframes
         .iter()
-        .zip(&scene.depths)
-        .map(|(kf, depth)| (kf, label_image(&refs, kf, depth)))
+        .enumerate()
+        .map(|(k, kf)| keyframe_labels(scene, k, kf, &refs, volume.as_ref()))
         .chain(novel.map(|kf| (kf, label_image(&refs, kf, &[]))))
         .map(|(kf, labels)| InstanceMasks {
             header: Header {

@@ -9,7 +9,7 @@ use std::sync::Arc;
 
 use glam::DVec3;
 
-use crate::frame::Keyframe;
+use crate::frame::{Keyframe, MeasuredDepth};
 use crate::graph::walls::object_list;
 use crate::graph::{GraphError, SceneGraph, SceneMap};
 use crate::group::semantics::Vocabulary;
@@ -64,6 +64,8 @@ pub struct ReferScene {
     /// Newest first, with the map's depth rendered in each.
     pub keyframes: Vec<Keyframe>,
     pub depths: Vec<Vec<f32>>,
+    /// Per keyframe, its sensor's depth where the node kept it (masks are cut by it).
+    pub measured: Vec<Option<Arc<MeasuredDepth>>>,
     /// The scene graph over the same keyframes (every instance, structure included).
     pub graph: SceneGraph,
     /// Per keyframe, each pixel's instance (index into `map.instances`; `None`: nothing there):
@@ -79,6 +81,26 @@ impl ReferScene {
     /// concept can be matched).
     pub fn build(map: SceneMap, vocabulary: Option<&Vocabulary>) -> Result<Self, GraphError> {
         Self::build_with_boxes(map, vocabulary, &HashMap::new())
+    }
+
+    /// The snapshot with `views`' sensor depth attached to the keyframes taken at the same
+    /// instant (the others keep none).
+    pub fn with_measured(mut self, views: &[Arc<MeasuredDepth>]) -> Self {
+        self.measured = self
+            .keyframes
+            .iter()
+            .map(|k| {
+                views
+                    .iter()
+                    .find(|m| {
+                        // Two cameras may share a stamp, never a pose.
+                        m.keyframe.stamp_nanos == k.stamp_nanos
+                            && m.keyframe.world_from_camera == k.world_from_camera
+                    })
+                    .cloned()
+            })
+            .collect();
+        self
     }
 
     /// As [`ReferScene::build`], with instances' boxes already fitted (by id; e.g. from the
@@ -166,6 +188,7 @@ impl ReferScene {
                 .take(SNAPSHOT_VIEWS)
                 .cloned()
                 .collect(),
+            measured: Vec::new(),
             depths,
             graph,
             labels,

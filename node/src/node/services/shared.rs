@@ -9,6 +9,7 @@ use groupforward_msgs::builtin_interfaces::Time;
 use groupforward_msgs::gf_msgs::{Instance, NodeStatus};
 use groupforward_msgs::vision_msgs::ObjectHypothesis;
 
+use crate::frame::MeasuredDepth;
 use crate::graph::walls::object_list;
 use crate::graph::{Fitted, SceneMap};
 use crate::group::semantics::Vocabulary;
@@ -62,6 +63,8 @@ pub struct Shared {
     pub map_generation: u64,
     /// The cameras and optical frames of the last window's views (masks are published in them).
     pub view_sources: Vec<ViewSource>,
+    /// The last window's views' sensor depth (answers' masks are cut by it).
+    pub measured_views: Vec<Arc<MeasuredDepth>>,
     /// The last published scene graph as JSON (the `scene_graph` JSON API).
     pub scene_graph_json: Option<serde_json::Value>,
     /// Boxes of the listed instances, refitted only when their Gaussians change.
@@ -233,7 +236,7 @@ pub fn snapshot_due(s: &mut Shared) {
 pub fn current_snapshot_and_generation(
     shared: &Mutex<Shared>,
 ) -> std::result::Result<(Arc<ReferScene>, u64), String> {
-    let (map, vocabulary, generation, boxes) = {
+    let (map, vocabulary, generation, boxes, measured) = {
         let mut s = shared.lock().map_err(|e| e.to_string())?;
         if s.refer_scene_generation == s.map_generation {
             return Ok((s.refer_scene.clone(), s.map_generation));
@@ -245,9 +248,17 @@ pub fn current_snapshot_and_generation(
             .iter()
             .map(|i| (i.id.clone(), refer::response::pose_box(&i.pose, &i.size)))
             .collect();
-        (s.map.clone(), s.vocabulary.clone(), s.map_generation, boxes)
+        let measured = s.measured_views.clone();
+        (
+            s.map.clone(),
+            s.vocabulary.clone(),
+            s.map_generation,
+            boxes,
+            measured,
+        )
     };
-    let built = ReferScene::build_with_boxes(map, vocabulary.as_ref(), &boxes);
+    let built = ReferScene::build_with_boxes(map, vocabulary.as_ref(), &boxes)
+        .map(|scene| scene.with_measured(&measured));
     let mut s = shared.lock().map_err(|e| e.to_string())?;
     if s.refer_scene_building.is_some_and(|(g, _)| g == generation) {
         s.refer_scene_building = None;
