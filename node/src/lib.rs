@@ -41,6 +41,7 @@ pub mod group;
 pub mod ingest;
 pub mod model;
 pub mod node;
+pub mod observations;
 pub mod outputs;
 pub mod recon;
 pub mod record;

@@ -9,7 +9,9 @@ use std::thread::JoinHandle;
 
 use super::services::Shared;
 use crate::config::Config;
-use crate::frame::{Keyframe, MeasuredDepth, SyncedFrame};
+use crate::frame::{Keyframe, MeasuredDepth, SyncedFrame, WindowView};
+use crate::graph::FusionReport;
+use crate::observations::{Observations, ObservedView};
 use crate::outputs::ViewSource;
 use crate::timing::Stage;
 use crate::window::WindowModels;
@@ -155,7 +157,7 @@ pub(super) fn start_window_worker(
         ) {
             let stamp = frames.last().map_or(0, |f| f.stamp_nanos);
             match models.pass(&frames) {
-                Ok(output) => {
+                Ok(mut output) => {
                     if let Some(reason) = &output.skipped {
                         tracing::warn!("window skipped: {reason}");
                         if let Ok(mut s) = shared.lock() {
@@ -196,23 +198,35 @@ pub(super) fn start_window_worker(
                         .collect();
                     // Fused into a copy without the lock (queries, publishing and services
                     // go on meanwhile), then swapped in unless the map was replaced meanwhile.
-                    let Ok((mut map, generation, mut boxes, hypotheses)) = shared.lock().map(|s| {
-                        (
-                            s.map.clone(),
-                            s.map_generation,
-                            s.boxes.clone(),
-                            s.hypotheses,
-                        )
-                    }) else {
+                    let Ok((mut map, generation, mut boxes, hypotheses, mut observations)) =
+                        shared.lock().map(|s| {
+                            (
+                                s.map.clone(),
+                                s.map_generation,
+                                s.boxes.clone(),
+                                s.hypotheses,
+                                s.observations.clone(),
+                            )
+                        })
+                    else {
                         return;
                     };
                     let found = output.instances.len();
+                    let pixel_instances = std::mem::take(&mut output.pixel_instances);
                     let mut times = output.times;
                     let fused = times.time(Stage::Fusion, || {
                         models.fuse(&mut map, output.instances, &output.views, stamp)
                     });
                     match fused {
                         Ok(report) => {
+                            keep_observations(
+                                &mut observations,
+                                &frames,
+                                &output.views,
+                                &pixel_instances,
+                                &report,
+                            );
+                            observations.retain(|id| map.instances.iter().any(|i| i.id == id));
                             let instances = times.time(Stage::List, || {
                                 super::services::instance_messages_cached(
                                     &map,
@@ -230,6 +244,7 @@ pub(super) fn start_window_worker(
                             }
                             s.view_sources = sources;
                             s.measured_views = measured;
+                            s.observations = observations.clone();
                             super::services::snapshot_due(&mut s);
                             let millis = times.total().as_millis() as u64;
                             times.0.push((Stage::Window, times.total()));
@@ -278,6 +293,44 @@ fn next_window(
                 }
             }
         }
+    }
+}
+
+/// Keep the camera's pictures of the window's instances (`pixel_instances`: per model pixel,
+/// view-major, its window instance), under the persistent ids fusion gave them.
+fn keep_observations(
+    observations: &mut Observations,
+    frames: &[SyncedFrame],
+    views: &[WindowView],
+    pixel_instances: &[i32],
+    report: &FusionReport,
+) {
+    observations.follow_folds(&report.absorbed);
+    let mut start = 0;
+    for (frame, view) in frames.iter().zip(views) {
+        let (width, height) = (
+            view.keyframe.camera.width as usize,
+            view.keyframe.camera.height as usize,
+        );
+        let Some(pixels) = pixel_instances.get(start..start + width * height) else {
+            return;
+        };
+        start += width * height;
+        let owners = pixels
+            .iter()
+            .map(|&k| {
+                usize::try_from(k)
+                    .ok()
+                    .and_then(|k| report.assigned.get(k))
+                    .map(String::as_str)
+            })
+            .collect();
+        observations.add_view(&ObservedView {
+            frame,
+            width,
+            height,
+            owners,
+        });
     }
 }
 

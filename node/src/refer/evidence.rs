@@ -191,9 +191,22 @@ fn images(
         }
     }
     let mut out = vec![("overview".to_owned(), overview)];
-    for (k, _) in answer.candidates.iter().enumerate() {
+    let observed = |k: usize| {
+        let id = &scene.nodes[answer.candidates[k].index].id;
+        scene.observations.of(id).first().cloned()
+    };
+    for k in 0..answer.candidates.len() {
         if out.len() >= max_images {
             break;
+        }
+        // Where the camera's own picture of it was kept, that is what the reasoner sees.
+        if let Some(o) = observed(k) {
+            let colour = PALETTE[k % PALETTE.len()];
+            out.push((
+                format!("candidate_{}", k + 1),
+                highlighted(&o.image, &o.mask, colour),
+            ));
+            continue;
         }
         // The candidate's visible pixels tinted, the rest dimmed.
         let mut data = base.clone();
@@ -229,6 +242,16 @@ fn images(
             if out.len() >= max_images {
                 break;
             }
+            if let Some(o) = observed(k) {
+                let image = match name {
+                    "crop" => mask_crop(&o.image, &o.mask, scale),
+                    _ => Some(o.image.clone()),
+                };
+                if let Some(image) = image {
+                    out.push((format!("candidate_{}_{name}", k + 1), image));
+                }
+                continue;
+            }
             if let Some((lo, hi)) = projected_box(&scene.nodes[c.index], &view) {
                 let centre = (lo + hi) / 2.0;
                 let half = (hi - lo) * scale / 2.0;
@@ -240,6 +263,38 @@ fn images(
     }
     out.truncate(max_images);
     out
+}
+
+/// `image` with the `mask`ed pixels tinted by `colour` and the rest dimmed.
+fn highlighted(image: &RgbImage, mask: &[bool], colour: [u8; 3]) -> RgbImage {
+    let mut data = image.data.clone();
+    for (p, pixel) in data.chunks_exact_mut(3).enumerate() {
+        let mine = mask.get(p).copied().unwrap_or(false);
+        for (v, tint) in pixel.iter_mut().zip(colour) {
+            *v = if mine {
+                (0.4 * f32::from(*v) + 0.6 * f32::from(tint)) as u8
+            } else {
+                (0.35 * f32::from(*v)) as u8
+            };
+        }
+    }
+    RgbImage { data, ..*image }
+}
+
+/// The part of `image` around its `mask`ed pixels, their extent times `scale`; None without any.
+fn mask_crop(image: &RgbImage, mask: &[bool], scale: f64) -> Option<RgbImage> {
+    let w = image.width as usize;
+    let (mut lo, mut hi) = (DVec2::splat(f64::INFINITY), DVec2::splat(f64::NEG_INFINITY));
+    for (p, _) in mask.iter().enumerate().filter(|(_, m)| **m) {
+        let at = DVec2::new((p % w.max(1)) as f64, (p / w.max(1)) as f64);
+        lo = lo.min(at);
+        hi = hi.max(at + DVec2::ONE);
+    }
+    if !(lo.is_finite() && hi.is_finite()) {
+        return None;
+    }
+    let (centre, half) = ((lo + hi) / 2.0, (hi - lo) * scale / 2.0);
+    crop(image, centre - half, centre + half)
 }
 
 /// The part of `image` inside [lo, hi] (clamped); None when that is empty.

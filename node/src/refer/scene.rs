@@ -13,6 +13,7 @@ use crate::frame::{Keyframe, MeasuredDepth};
 use crate::graph::walls::object_list;
 use crate::graph::{GraphError, SceneGraph, SceneMap};
 use crate::group::semantics::Vocabulary;
+use crate::observations::Observations;
 use crate::recon::boxes::OrientedBox;
 use crate::recon::gaussians::Gaussians;
 
@@ -66,6 +67,8 @@ pub struct ReferScene {
     pub depths: Vec<Vec<f32>>,
     /// Per keyframe, its sensor's depth where the node kept it (masks are cut by it).
     pub measured: Vec<Option<Arc<MeasuredDepth>>>,
+    /// The camera's pictures of the instances (the evidence shows them where kept).
+    pub observations: Observations,
     /// The scene graph over the same keyframes (every instance, structure included).
     pub graph: SceneGraph,
     /// Per keyframe, each pixel's instance (index into `map.instances`; `None`: nothing there):
@@ -100,6 +103,12 @@ impl ReferScene {
                     .cloned()
             })
             .collect();
+        self
+    }
+
+    /// The snapshot with the camera's pictures of its instances.
+    pub fn with_observations(mut self, observations: Observations) -> Self {
+        self.observations = observations;
         self
     }
 
@@ -189,6 +198,7 @@ impl ReferScene {
                 .cloned()
                 .collect(),
             measured: Vec::new(),
+            observations: Observations::default(),
             depths,
             graph,
             labels,

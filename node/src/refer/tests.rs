@@ -349,3 +349,84 @@ fn a_two_hop_anchor_is_answered_first_and_its_answer_is_the_anchor() {
         "{got:?}"
     );
 }
+
+#[test]
+fn the_evidence_shows_the_camera_s_own_picture_of_a_candidate_where_one_was_kept() {
+    use crate::frame::{Keyframe, RgbImage, SyncedFrame};
+    use crate::observations::{Observations, ObservedView};
+    use crate::recon::camera::Camera;
+    use crate::recon::Rigid;
+    // The view() camera: at (0.5, -6, 1) looking along +y.
+    let rotation = DQuat::from_mat3(&DMat3::from_cols(DVec3::X, DVec3::NEG_Z, DVec3::Y));
+    let keyframe = Keyframe {
+        stamp_nanos: 1,
+        camera: Camera::from_fov(64, 48, 1.2).unwrap(),
+        world_from_camera: Rigid::new(rotation, DVec3::new(0.5, -6.0, 1.0)),
+    };
+    let mut scene = room();
+    scene.keyframes = vec![keyframe.clone()];
+    let answer = ask(&scene, "the red chair").unwrap();
+    let red = scene.nodes[answer.chosen[0].index].id.clone();
+    // The camera saw the red chair over a quarter of a plain grey 160 × 120 picture.
+    let frame = SyncedFrame {
+        camera_name: "front".into(),
+        stamp_nanos: 1,
+        frame_id: "camera".into(),
+        rgb: RgbImage {
+            width: 160,
+            height: 120,
+            data: vec![128; 160 * 120 * 3],
+        },
+        depth: None,
+        camera: Camera::from_fov(160, 120, 1.2).unwrap(),
+        world_from_camera: keyframe.world_from_camera,
+    };
+    let owners = (0..64 * 48)
+        .map(|p| {
+            (p % 64 >= 16 && p % 64 < 32 && p / 64 >= 12 && p / 64 < 24).then_some(red.as_str())
+        })
+        .collect();
+    let mut observations = Observations::default();
+    observations.add_view(&ObservedView {
+        frame: &frame,
+        width: 64,
+        height: 48,
+        owners,
+    });
+    // The map's Gaussians: a panel where the chair stands.
+    let mut panel = crate::refer::response::tests::wall(0.9, 1.4, 0.0);
+    for m in &mut panel.means {
+        *m = glam::Vec3::new(m.x, 0.0, m.y + 0.5);
+    }
+    let map = [(red.clone(), panel)];
+    let rendered = evidence::build(&scene, &answer, &map, 32);
+    let scene = scene.with_observations(observations);
+    let shown = evidence::build(&scene, &answer, &map, 32);
+    let number = answer
+        .candidates
+        .iter()
+        .position(|c| scene.nodes[c.index].id == red)
+        .unwrap()
+        + 1;
+    let image = |e: &evidence::Evidence, name: String| {
+        e.images
+            .iter()
+            .find(|(n, _)| *n == name)
+            .map(|(_, i)| (i.width, i.height))
+    };
+    // The picture: the chair's 40 × 30 camera pixels and half their extent around them.
+    assert_eq!(
+        image(&shown, format!("candidate_{number}_context")),
+        Some((80, 60))
+    );
+    assert_eq!(image(&shown, format!("candidate_{number}")), Some((80, 60)));
+    assert_eq!(
+        image(&shown, format!("candidate_{number}_crop")),
+        Some((48, 36))
+    );
+    // Without it, the render of the map at the keyframe.
+    assert_eq!(
+        image(&rendered, format!("candidate_{number}")),
+        Some((192, 144))
+    );
+}

@@ -14,6 +14,7 @@ use crate::graph::walls::object_list;
 use crate::graph::{Fitted, SceneMap};
 use crate::group::semantics::Vocabulary;
 use crate::model::text::TextEncoder;
+use crate::observations::Observations;
 use crate::outputs::ViewSource;
 use crate::recon::boxes::OrientedBox;
 use crate::refer::{self, ReferScene, ReferSection};
@@ -65,6 +66,8 @@ pub struct Shared {
     pub view_sources: Vec<ViewSource>,
     /// The last window's views' sensor depth (answers' masks are cut by it).
     pub measured_views: Vec<Arc<MeasuredDepth>>,
+    /// The camera's pictures of each instance (the VLM's evidence shows them).
+    pub observations: Observations,
     /// The last published scene graph as JSON (the `scene_graph` JSON API).
     pub scene_graph_json: Option<serde_json::Value>,
     /// Boxes of the listed instances, refitted only when their Gaussians change.
@@ -163,6 +166,9 @@ impl Shared {
     /// Replace the map and refresh the instance messages.
     pub fn set_map(&mut self, map: SceneMap) {
         self.map = map;
+        // What was seen of the map it replaces is not of this one (ids are reused).
+        self.measured_views.clear();
+        self.observations = Observations::default();
         self.refresh_instances();
     }
 
@@ -236,7 +242,7 @@ pub fn snapshot_due(s: &mut Shared) {
 pub fn current_snapshot_and_generation(
     shared: &Mutex<Shared>,
 ) -> std::result::Result<(Arc<ReferScene>, u64), String> {
-    let (map, vocabulary, generation, boxes, measured) = {
+    let (map, vocabulary, generation, boxes, (measured, observations)) = {
         let mut s = shared.lock().map_err(|e| e.to_string())?;
         if s.refer_scene_generation == s.map_generation {
             return Ok((s.refer_scene.clone(), s.map_generation));
@@ -248,17 +254,20 @@ pub fn current_snapshot_and_generation(
             .iter()
             .map(|i| (i.id.clone(), refer::response::pose_box(&i.pose, &i.size)))
             .collect();
-        let measured = s.measured_views.clone();
+        let seen = (s.measured_views.clone(), s.observations.clone());
         (
             s.map.clone(),
             s.vocabulary.clone(),
             s.map_generation,
             boxes,
-            measured,
+            seen,
         )
     };
-    let built = ReferScene::build_with_boxes(map, vocabulary.as_ref(), &boxes)
-        .map(|scene| scene.with_measured(&measured));
+    let built = ReferScene::build_with_boxes(map, vocabulary.as_ref(), &boxes).map(|scene| {
+        scene
+            .with_measured(&measured)
+            .with_observations(observations)
+    });
     let mut s = shared.lock().map_err(|e| e.to_string())?;
     if s.refer_scene_building.is_some_and(|(g, _)| g == generation) {
         s.refer_scene_building = None;
