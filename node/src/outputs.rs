@@ -496,7 +496,7 @@ mod tests {
     use crate::node::instance_messages;
     use crate::recon::camera::Camera;
     use crate::recon::Rigid;
-    use crate::refer::response::tests::wall;
+    use crate::refer::masks::tests::wall;
 
     /// A map of the given walls (one instance each, ids inst_000001...) and two keyframes at
     /// the origin looking along +z (stamps 5 and 6).

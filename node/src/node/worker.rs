@@ -226,7 +226,9 @@ pub(super) fn start_window_worker(
                                 &pixel_instances,
                                 &report,
                             );
-                            observations.retain(|id| map.instances.iter().any(|i| i.id == id));
+                            let live: rustc_hash::FxHashSet<&str> =
+                                map.instances.iter().map(|i| i.id.as_str()).collect();
+                            observations.retain(|id| live.contains(id));
                             let instances = times.time(Stage::List, || {
                                 super::services::instance_messages_cached(
                                     &map,
@@ -244,7 +246,7 @@ pub(super) fn start_window_worker(
                             }
                             s.view_sources = sources;
                             s.measured_views = measured;
-                            s.observations = observations.clone();
+                            s.observations = observations;
                             super::services::snapshot_due(&mut s);
                             let millis = times.total().as_millis() as u64;
                             times.0.push((Stage::Window, times.total()));

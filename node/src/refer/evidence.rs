@@ -169,11 +169,12 @@ fn images(
             .filter(|(_, v)| **v > 0.5)
             .map_or(0, |(k, _)| k + 1);
     }
-    let mut overview = RgbImage {
+    let base = RgbImage {
         width: w as u32,
         height: h as u32,
-        data: base.clone(),
+        data: base,
     };
+    let mut overview = base.clone();
     for (k, c) in answer.candidates.iter().enumerate() {
         let node = &scene.nodes[c.index];
         if let Some((lo, hi)) = projected_box(node, &view) {
@@ -199,44 +200,19 @@ fn images(
         if out.len() >= max_images {
             break;
         }
-        // Where the camera's own picture of it was kept, that is what the reasoner sees.
-        if let Some(o) = observed(k) {
-            let colour = PALETTE[k % PALETTE.len()];
-            out.push((
-                format!("candidate_{}", k + 1),
-                highlighted(&o.image, &o.mask, colour),
-            ));
-            continue;
-        }
-        // The candidate's visible pixels tinted, the rest dimmed.
-        let mut data = base.clone();
-        for p in 0..pixels {
-            let mine = owner[p] == k + 1;
-            for c in 0..3 {
-                let v = f32::from(data[p * 3 + c]);
-                let tint = f32::from(PALETTE[k % PALETTE.len()][c]);
-                data[p * 3 + c] = if mine {
-                    (0.4 * v + 0.6 * tint) as u8
-                } else {
-                    (0.35 * v) as u8
-                };
+        // Where the camera's own picture of it was kept, that is what the reasoner sees;
+        // otherwise its visible pixels in the render.
+        let colour = PALETTE[k % PALETTE.len()];
+        let image = match observed(k) {
+            Some(o) => highlighted(&o.image, &o.mask, colour),
+            None => {
+                let mask: Vec<bool> = owner.iter().map(|o| *o == k + 1).collect();
+                highlighted(&base, &mask, colour)
             }
-        }
-        out.push((
-            format!("candidate_{}", k + 1),
-            RgbImage {
-                width: w as u32,
-                height: h as u32,
-                data,
-            },
-        ));
+        };
+        out.push((format!("candidate_{}", k + 1), image));
     }
     // Then per candidate an object-centred crop and its local context (three times the box).
-    let base = RgbImage {
-        width: w as u32,
-        height: h as u32,
-        data: base,
-    };
     for (scale, name) in [(1.2, "crop"), (3.0, "context")] {
         for (k, c) in answer.candidates.iter().enumerate() {
             if out.len() >= max_images {

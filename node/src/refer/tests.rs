@@ -394,7 +394,7 @@ fn the_evidence_shows_the_camera_s_own_picture_of_a_candidate_where_one_was_kept
         owners,
     });
     // The map's Gaussians: a panel where the chair stands.
-    let mut panel = crate::refer::response::tests::wall(0.9, 1.4, 0.0);
+    let mut panel = crate::refer::masks::tests::wall(0.9, 1.4, 0.0);
     for m in &mut panel.means {
         *m = glam::Vec3::new(m.x, 0.0, m.y + 0.5);
     }
