@@ -335,18 +335,7 @@ impl Vocabulary {
     /// The `count` best phrases for `prototype`, best first, with their softmax scores. Empty when
     /// the prototype is empty or zero, or the vocabulary is.
     pub fn hypotheses(&self, prototype: &[f32], count: usize) -> Vec<(String, f32)> {
-        self.hypotheses_given(prototype, None, count)
-    }
-
-    /// [`Vocabulary::hypotheses`] of something `length_m` long
-    /// ([`Vocabulary::probabilities_given`]).
-    pub fn hypotheses_given(
-        &self,
-        prototype: &[f32],
-        length_m: Option<f64>,
-        count: usize,
-    ) -> Vec<(String, f32)> {
-        self.ranked(&self.probabilities_given(prototype, length_m), count)
+        self.ranked(&self.probabilities(prototype), count)
     }
 
     /// The `count` phrases `probabilities` (one per phrase, in the vocabulary's order) rank
