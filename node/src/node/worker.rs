@@ -148,7 +148,7 @@ pub(super) fn start_window_worker(
             s.text_encoder = models.text_encoder.take().map(|e| Arc::new(Mutex::new(e)));
             s.refresh_instances();
         }
-        while let Some(frames) = next_window(
+        while let Some(mut frames) = next_window(
             &receiver,
             &windows_waiting,
             &keyframes_waiting,
@@ -177,25 +177,7 @@ pub(super) fn start_window_worker(
                         })
                         .collect();
                     // The views' sensor depth, kept for the masks of answers in them.
-                    let measured: Vec<Arc<MeasuredDepth>> = frames
-                        .iter()
-                        .zip(&output.views)
-                        .filter_map(|(f, v)| {
-                            // Registered to the colour camera, as the ingest checks.
-                            let depth = f.depth.as_ref().filter(|d| {
-                                (d.width, d.height) == (f.camera.width, f.camera.height)
-                            })?;
-                            Some(Arc::new(MeasuredDepth {
-                                keyframe: Keyframe {
-                                    stamp_nanos: f.stamp_nanos,
-                                    camera: f.camera,
-                                    world_from_camera: f.world_from_camera,
-                                },
-                                depth: depth.metres.clone(),
-                                noise_at_1m: v.depth_noise_at_1m,
-                            }))
-                        })
-                        .collect();
+                    let measured = measured_depths(&mut frames, &output.views);
                     // Fused into a copy without the lock (queries, publishing and services
                     // go on meanwhile), then swapped in unless the map was replaced meanwhile.
                     let Ok((mut map, generation, mut boxes, hypotheses, mut observations)) =
@@ -296,6 +278,30 @@ fn next_window(
             }
         }
     }
+}
+
+/// The views' sensor depth, taken from the frames (registered to the colour camera, as the
+/// ingest checks), kept for the masks of answers in them.
+fn measured_depths(frames: &mut [SyncedFrame], views: &[WindowView]) -> Vec<Arc<MeasuredDepth>> {
+    frames
+        .iter_mut()
+        .zip(views)
+        .filter_map(|(f, v)| {
+            let depth = f
+                .depth
+                .take()
+                .filter(|d| (d.width, d.height) == (f.camera.width, f.camera.height))?;
+            Some(Arc::new(MeasuredDepth {
+                keyframe: Keyframe {
+                    stamp_nanos: f.stamp_nanos,
+                    camera: f.camera,
+                    world_from_camera: f.world_from_camera,
+                },
+                depth: depth.metres,
+                noise_at_1m: v.depth_noise_at_1m,
+            }))
+        })
+        .collect()
 }
 
 /// Keep the camera's pictures of the window's instances (`pixel_instances`: per model pixel,
