@@ -8,7 +8,9 @@ use std::borrow::Cow;
 use std::collections::HashMap;
 use std::sync::Arc;
 
-use crate::frame::{undistort_image, RgbImage, SyncedFrame};
+use crate::frame::{undistort_image, Keyframe, RgbImage, SyncedFrame};
+use crate::model::reconstruction::resized_camera;
+use crate::recon::camera::{Camera, PlumbBob};
 
 /// Observations kept per instance: the views that saw most of its pixels. With
 /// [`CROP_MAX_SIDE`], sized to the bound: 2 × 120² × (3 colour + 1 mask) bytes is
@@ -43,10 +45,22 @@ impl Observation {
     }
 }
 
-/// The kept observations, by persistent instance id. Cheap to clone (observations are shared).
+/// The newest camera picture a window saw, undistorted, and the view it shows: what the evidence's
+/// overview is drawn on (one picture at the camera's resolution: about 0.9 MB at 640 × 480).
+#[derive(Debug, Clone, PartialEq)]
+pub struct CameraPicture {
+    /// Its pose, stamp and camera (the camera's intrinsics, without distortion: the image is
+    /// undistorted).
+    pub keyframe: Keyframe,
+    pub image: RgbImage,
+}
+
+/// The kept observations, by persistent instance id, and the newest camera picture. Cheap to
+/// clone (observations are shared).
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Observations {
     by_instance: HashMap<String, Vec<Arc<Observation>>>,
+    newest: Option<Arc<CameraPicture>>,
 }
 
 /// A window's view as the store reads it: the camera frame, and per model pixel (`width` ×
@@ -65,6 +79,11 @@ impl Observations {
         self.by_instance.get(id).map_or(&[], Vec::as_slice)
     }
 
+    /// The newest camera picture kept ([`Observations::add_view`]).
+    pub fn newest(&self) -> Option<&CameraPicture> {
+        self.newest.as_deref()
+    }
+
     /// Instances with observations.
     pub fn len(&self) -> usize {
         self.by_instance.len()
@@ -76,14 +95,53 @@ impl Observations {
 
     /// Bytes held by every kept image.
     pub fn bytes(&self) -> usize {
-        self.by_instance.values().flatten().map(|o| o.bytes()).sum()
+        let newest = self.newest.as_ref().map_or(0, |n| n.image.data.len());
+        newest
+            + self
+                .by_instance
+                .values()
+                .flatten()
+                .map(|o| o.bytes())
+                .sum::<usize>()
     }
 
-    /// Keep what `view` shows of each instance where it beats that instance's kept ones.
+    /// Keep what `view` shows of each instance where it beats that instance's kept ones, and
+    /// its picture when it is the newest.
     pub fn add_view(&mut self, view: &ObservedView<'_>) {
         // The model saw the undistorted image: crops come from the same one, undistorted once
         // for the view and only when something is kept from it.
         let mut image: Option<Cow<'_, RgbImage>> = None;
+        self.keep_instances(view, &mut image);
+        let frame = view.frame;
+        if self
+            .newest
+            .as_ref()
+            .is_some_and(|n| n.keyframe.stamp_nanos > frame.stamp_nanos)
+        {
+            return;
+        }
+        let image = image.unwrap_or_else(|| undistorted(frame)).into_owned();
+        let camera = resized_camera(&frame.camera, image.width as usize, image.height as usize);
+        self.newest = Some(Arc::new(CameraPicture {
+            keyframe: Keyframe {
+                stamp_nanos: frame.stamp_nanos,
+                camera: Camera {
+                    distortion: PlumbBob::default(),
+                    ..camera
+                },
+                world_from_camera: frame.world_from_camera,
+            },
+            image,
+        }));
+    }
+
+    /// What `view` shows of each instance, where it beats that instance's kept ones; `image` is
+    /// the view's undistorted picture once something needed it.
+    fn keep_instances<'a>(
+        &mut self,
+        view: &ObservedView<'a>,
+        image: &mut Option<Cow<'a, RgbImage>>,
+    ) {
         for (id, extent) in extents(view) {
             if extent.pixels < MIN_OBSERVED_PIXELS {
                 continue;
@@ -93,14 +151,7 @@ impl Observations {
             if kept.len() >= OBSERVATIONS_PER_INSTANCE && extent.pixels <= worst {
                 continue;
             }
-            let frame = view.frame;
-            let image = image.get_or_insert_with(|| {
-                if frame.camera.distortion.is_zero() {
-                    Cow::Borrowed(&frame.rgb)
-                } else {
-                    Cow::Owned(undistort_image(&frame.camera, &frame.rgb))
-                }
-            });
+            let image = image.get_or_insert_with(|| undistorted(view.frame));
             let Some(observation) = observe(view, image, id, &extent) else {
                 continue;
             };
@@ -121,6 +172,15 @@ impl Observations {
     /// Drop the observations of instances `live` says are gone.
     pub fn retain(&mut self, live: impl Fn(&str) -> bool) {
         self.by_instance.retain(|id, _| live(id));
+    }
+}
+
+/// The frame's picture as the model saw it: undistorted (borrowed where it has no distortion).
+fn undistorted(frame: &SyncedFrame) -> Cow<'_, RgbImage> {
+    if frame.camera.distortion.is_zero() {
+        Cow::Borrowed(&frame.rgb)
+    } else {
+        Cow::Owned(undistort_image(&frame.camera, &frame.rgb))
     }
 }
 
@@ -321,7 +381,9 @@ mod tests {
             }
         }
         assert_eq!(many.len(), 500);
-        let bound = 500 * OBSERVATIONS_PER_INSTANCE * CROP_MAX_SIDE * CROP_MAX_SIDE * 4;
+        // The crops, and the newest picture the overview is drawn on.
+        let picture = many.newest().map_or(0, |n| n.image.data.len());
+        let bound = 500 * OBSERVATIONS_PER_INSTANCE * CROP_MAX_SIDE * CROP_MAX_SIDE * 4 + picture;
         assert!(
             many.bytes() <= bound && bound <= 64 << 20,
             "{} bytes",
@@ -343,7 +405,22 @@ mod tests {
         assert!(store.of("inst_000002").is_empty());
         assert_eq!(store.of("inst_000001").len(), 2);
         store.retain(|id| id != "inst_000001");
-        assert!(store.is_empty() && store.bytes() == 0);
+        // The newest picture stays: it shows the view, not an instance.
+        let picture = store.newest().map(|n| n.image.data.len());
+        assert!(store.is_empty() && Some(store.bytes()) == picture);
+    }
+
+    #[test]
+    fn the_newest_picture_is_kept_whole_and_an_older_frame_does_not_replace_it() {
+        let (older, newer) = (frame(1), frame(2));
+        let mut store = Observations::default();
+        store.add_view(&view(&newer, vec![None; 80 * 60]));
+        store.add_view(&view(&older, owners("inst_000001", (0, 0, 20, 20))));
+        let picture = store.newest().unwrap();
+        assert_eq!(picture.keyframe.stamp_nanos, 2);
+        assert_eq!((picture.image.width, picture.image.height), (320, 240));
+        assert_eq!(picture.image, newer.rgb);
+        assert!(picture.keyframe.camera.distortion.is_zero());
     }
 
     #[test]

@@ -1,9 +1,11 @@
 //! The evidence bundle a reasoner sees (ARCHITECTURE.md §2): per candidate the structured node as JSON
-//! (names, centre, extent, volume, colour, visibility, its nearest neighbours), and images
-//! rendered from the map with the rasterizer at the newest keyframe: a global overview with the
-//! candidates' outlines numbered (the current choice drawn heavier), per candidate its mask
-//! highlighted, an object-centred crop and its local context. Written
-//! as PNG + JSON by `--evidence DIR` so a person can look at what the reasoner saw.
+//! (names, centre, extent, volume, colour, visibility, its nearest neighbours), and images: a
+//! global overview with the candidates' outlines numbered (the current choice drawn heavier) on
+//! the camera's newest picture, per candidate its mask highlighted, an object-centred crop and
+//! its local context from the camera's pictures of it ([`crate::observations`]). Where the node
+//! kept no picture (a map loaded from disk, an instance never seen well), the map is rendered
+//! with the rasterizer at the newest keyframe instead. Written as PNG + JSON by `--evidence DIR`
+//! so a person can look at what the reasoner saw.
 
 use std::path::Path;
 
@@ -174,23 +176,11 @@ fn images(
         height: h as u32,
         data: base,
     };
-    let mut overview = base.clone();
-    for (k, c) in answer.candidates.iter().enumerate() {
-        let node = &scene.nodes[c.index];
-        if let Some((lo, hi)) = projected_box(node, &view) {
-            let colour = PALETTE[k % PALETTE.len()];
-            // The reasoner's choice is drawn heavier: the overview shows the answer at a glance.
-            let chosen = answer.chosen.iter().any(|ch| ch.index == c.index);
-            draw_rect(&mut overview, lo, hi, colour, if chosen { 5 } else { 2 });
-            draw_number(
-                &mut overview,
-                lo.x as i64 + 2,
-                lo.y as i64 + 2,
-                k + 1,
-                colour,
-            );
-        }
-    }
+    // The overview is the camera's newest picture where one was kept, the render otherwise.
+    let overview = match scene.observations.newest() {
+        Some(picture) => outlined(scene, answer, &picture.image, &picture.keyframe),
+        None => outlined(scene, answer, &base, &view),
+    };
     let mut out = vec![("overview".to_owned(), overview)];
     let observed = |k: usize| {
         let id = &scene.nodes[answer.candidates[k].index].id;
@@ -239,6 +229,28 @@ fn images(
     }
     out.truncate(max_images);
     out
+}
+
+/// `image` (seen from `view`) with the candidates' boxes outlined and numbered, the reasoner's
+/// choice drawn heavier: the overview shows the answer at a glance.
+fn outlined(scene: &ReferScene, answer: &Answer, image: &RgbImage, view: &Keyframe) -> RgbImage {
+    let mut overview = image.clone();
+    for (k, c) in answer.candidates.iter().enumerate() {
+        let node = &scene.nodes[c.index];
+        if let Some((lo, hi)) = projected_box(node, view) {
+            let colour = PALETTE[k % PALETTE.len()];
+            let chosen = answer.chosen.iter().any(|ch| ch.index == c.index);
+            draw_rect(&mut overview, lo, hi, colour, if chosen { 5 } else { 2 });
+            draw_number(
+                &mut overview,
+                lo.x as i64 + 2,
+                lo.y as i64 + 2,
+                k + 1,
+                colour,
+            );
+        }
+    }
+    overview
 }
 
 /// `image` with the `mask`ed pixels tinted by `colour` and the rest dimmed.

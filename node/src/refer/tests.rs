@@ -429,4 +429,11 @@ fn the_evidence_shows_the_camera_s_own_picture_of_a_candidate_where_one_was_kept
         image(&rendered, format!("candidate_{number}")),
         Some((192, 144))
     );
+    // The overview: the camera's newest picture with the candidates outlined on it (the plain
+    // grey picture is not grey everywhere any more), the render where none was kept.
+    assert_eq!(image(&shown, "overview".into()), Some((160, 120)));
+    assert_eq!(image(&rendered, "overview".into()), Some((192, 144)));
+    let overview = &shown.images[0].1;
+    assert!(overview.data.chunks_exact(3).any(|p| p != [128, 128, 128]));
+    assert!(overview.data.chunks_exact(3).any(|p| p == [128, 128, 128]));
 }

@@ -108,8 +108,9 @@ impl VlmClient {
         };
         let text = format!(
             "A robot's 3D map holds the numbered candidate objects below (JSON). The images are \
-             rendered from the map: the first is an overview with each candidate's outline and \
-             number, the others highlight one candidate each. Which candidate(s) does the \
+             the robot's camera pictures (or renders of its map where it kept none): the first is \
+             an overview with each candidate's outline and number, the others highlight one \
+             candidate each. Which candidate(s) does the \
              expression {expression:?} mean? Choose {wanted}, only among the candidates' ids, and \
              answer JSON {{\"ids\": [...], \"reason\": \"...\"}}.\n{}",
             evidence.json
