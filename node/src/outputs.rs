@@ -7,7 +7,8 @@
 //! - `~/instance_array`: `groupforward_msgs/InstanceArray` (confidence, Gaussian count, seen);
 //! - `~/instance_cloud`: `sensor_msgs/PointCloud2` (x, y, z, rgb, instance_id): the 3D mask;
 //! - `~/instance_masks`: `groupforward_msgs/InstanceMasks` per keyframe of the last window
-//!   (mono16 label image at the model's resolution, 0 = no instance, k = `instance_ids[k-1]`);
+//!   (mono16 label image, 0 = no instance, k = `instance_ids[k-1]`; at the sensor's resolution,
+//!   cut by the depth it measured, where the node kept that view's depth; else the model's);
 //! - `~/markers`: `visualization_msgs/MarkerArray`, a box and a label per instance, deleted
 //!   when the instance leaves the list;
 //! - `~/scene_graph`: `groupforward_msgs/SceneGraph`, and the same as JSON on the JSON API.
@@ -29,6 +30,7 @@ use groupforward_msgs::vision_msgs::{
 use groupforward_msgs::visualization_msgs::{Marker, MarkerArray};
 use serde::{Deserialize, Serialize};
 
+use crate::frame::Keyframe;
 use crate::recon::gaussians::Gaussians;
 use crate::refer::response::{instance_cloud, mono16, numeric_id};
 use crate::refer::scene::ReferScene;
@@ -189,32 +191,24 @@ pub fn cloud(
 }
 
 /// Per keyframe of the snapshot (the last window's views, newest first), the label image of the
-/// listed instances: the snapshot's whole-map render (nearest surface wins, so what structure or
-/// other instances hide stays out), with unlisted instances (structure) as 0. `sources` name each
-/// keyframe's camera and optical frame (by stamp); a keyframe without one has empty names.
+/// listed instances, 0 where none is (structure included). Where the snapshot kept the sensor's
+/// depth for the keyframe, at the sensor's resolution: a pixel is the listed instance whose map
+/// points its reading lies on ([`crate::refer::masks::measured_labels`]; the splats where it read
+/// nothing). Otherwise at the model's resolution: the snapshot's whole-map render (nearest surface
+/// wins, so what structure or other instances hide stays out). `sources` name each keyframe's
+/// camera and optical frame (by stamp); a keyframe without one has empty names.
 pub fn masks(
     scene: &ReferScene,
     instances: &[Instance],
     sources: &[ViewSource],
 ) -> Vec<InstanceMasks> {
-    // Map instance index -> label (1 + position in the list; 0 = not listed).
-    let position: HashMap<&str, u16> = instances
-        .iter()
-        .enumerate()
-        .map(|(k, i)| (i.id.as_str(), (k + 1).min(usize::from(u16::MAX)) as u16))
-        .collect();
-    let label_of: Vec<u16> = scene
-        .map
-        .instances
-        .iter()
-        .map(|i| position.get(i.id.as_str()).copied().unwrap_or(0))
-        .collect();
     let ids: Vec<String> = instances.iter().map(|i| i.id.clone()).collect();
+    let listed = ListedLabels::new(scene, instances);
     scene
         .keyframes
         .iter()
-        .zip(&scene.labels)
-        .map(|(keyframe, pixels)| {
+        .enumerate()
+        .map(|(k, keyframe)| {
             let source = sources
                 .iter()
                 .find(|s| s.stamp_nanos == keyframe.stamp_nanos)
@@ -224,26 +218,94 @@ pub fn masks(
                 stamp: Time::from_nanos(keyframe.stamp_nanos),
                 frame_id: source.frame_id,
             };
-            let labels: Vec<u16> = pixels
-                .iter()
-                .map(|p| {
-                    p.and_then(|k| label_of.get(k as usize).copied())
-                        .unwrap_or(0)
-                })
-                .collect();
+            let (view, labels) = listed.in_keyframe(scene, k, keyframe);
             InstanceMasks {
                 header: header.clone(),
                 camera: source.camera,
-                mask: mono16(
-                    header,
-                    keyframe.camera.width,
-                    keyframe.camera.height,
-                    &labels,
-                ),
+                mask: mono16(header, view.camera.width, view.camera.height, &labels),
                 instance_ids: ids.clone(),
             }
         })
         .collect()
+}
+
+/// The listed instances as the snapshot's map holds them, each with its label (1 + its place in
+/// the list), and the map's points around them for masks cut by measured depth.
+struct ListedLabels<'s> {
+    /// Per map instance, its label (0: not listed).
+    label_of_map: Vec<u16>,
+    /// The listed instances the map holds: their Gaussians and labels, in the same order.
+    gaussians: Vec<&'s Gaussians>,
+    labels: Vec<u16>,
+    volume: Option<crate::refer::masks::AnswerVolume>,
+}
+
+impl<'s> ListedLabels<'s> {
+    fn new(scene: &'s ReferScene, instances: &[Instance]) -> Self {
+        let position: HashMap<&str, u16> = instances
+            .iter()
+            .enumerate()
+            .map(|(k, i)| (i.id.as_str(), (k + 1).min(usize::from(u16::MAX)) as u16))
+            .collect();
+        let label_of_map: Vec<u16> = scene
+            .map
+            .instances
+            .iter()
+            .map(|i| position.get(i.id.as_str()).copied().unwrap_or(0))
+            .collect();
+        let chosen: Vec<usize> = (0..label_of_map.len())
+            .filter(|&m| label_of_map[m] > 0)
+            .collect();
+        let all: Vec<&Gaussians> = scene.map.instances.iter().map(|i| &i.gaussians).collect();
+        // Built only when some keyframe has measured depth to cut by.
+        let volume = scene
+            .measured
+            .iter()
+            .any(Option::is_some)
+            .then(|| crate::refer::masks::AnswerVolume::new(&all, &chosen))
+            .flatten();
+        Self {
+            gaussians: chosen.iter().map(|&m| all[m]).collect(),
+            labels: chosen.iter().map(|&m| label_of_map[m]).collect(),
+            label_of_map,
+            volume,
+        }
+    }
+
+    /// The view the `k`-th keyframe's labels are at, and the labels.
+    fn in_keyframe<'a>(
+        &self,
+        scene: &'a ReferScene,
+        k: usize,
+        keyframe: &'a Keyframe,
+    ) -> (&'a Keyframe, Vec<u16>) {
+        if scene.measured.get(k).is_some_and(Option::is_some) {
+            let (view, found) = crate::refer::masks::keyframe_labels(
+                scene,
+                k,
+                keyframe,
+                &self.gaussians,
+                self.volume.as_ref(),
+            );
+            let labels = found
+                .iter()
+                .map(|&f| match f {
+                    0 => 0,
+                    f => self.labels.get(usize::from(f) - 1).copied().unwrap_or(0),
+                })
+                .collect();
+            return (view, labels);
+        }
+        let pixels = scene.labels.get(k).map_or(&[][..], Vec::as_slice);
+        let labels = pixels
+            .iter()
+            .map(|p| {
+                p.and_then(|m| self.label_of_map.get(m as usize).copied())
+                    .unwrap_or(0)
+            })
+            .collect();
+        (keyframe, labels)
+    }
 }
 
 /// Marker namespaces: one box and one label per instance, both with the instance's numeric id,
@@ -491,7 +553,7 @@ mod tests {
     use groupforward_msgs::vision_msgs::ObjectHypothesis;
 
     use super::*;
-    use crate::frame::{Keyframe, WindowInstance};
+    use crate::frame::WindowInstance;
     use crate::graph::{FusionParams, SceneMap};
     use crate::node::instance_messages;
     use crate::recon::camera::Camera;
@@ -705,6 +767,56 @@ mod tests {
         assert_eq!(instance_array(&header, &instances).instances, instances);
     }
 
+    /// Each mask's stamp and size, and the label at column `x` of the middle row of the first.
+    fn stamps_sizes_and_middle_row(
+        masks: &[InstanceMasks],
+    ) -> (Vec<(i64, u32, u32)>, impl Fn(usize) -> u16 + '_) {
+        let sizes = masks
+            .iter()
+            .map(|m| (m.header.stamp.as_nanos(), m.mask.width, m.mask.height))
+            .collect();
+        let first = &masks[0].mask;
+        let label = move |x: usize| {
+            let o = 2 * ((first.height as usize / 2) * first.width as usize + x);
+            u16::from_le_bytes([first.data[o], first.data[o + 1]])
+        };
+        (sizes, label)
+    }
+
+    #[test]
+    fn published_masks_are_at_the_sensor_s_resolution_where_the_snapshot_kept_its_depth() {
+        use crate::frame::MeasuredDepth;
+        let (scene, instances) =
+            scene_of(map_of(vec![wall(-0.6, -0.02, 2.0), wall(0.02, 0.6, 2.0)]));
+        // The newest keyframe's sensor measured both walls at 2 m, at twice the model's size,
+        // and the wall beyond them (3 m) on the left of the picture.
+        let sensor = Keyframe {
+            stamp_nanos: 6,
+            camera: Camera::from_fov(128, 96, 1.2).unwrap(),
+            world_from_camera: Rigid::default(),
+        };
+        let depth = (0..128 * 96)
+            .map(|p| if p % 128 < 8 { 3.0 } else { 2.0 })
+            .collect();
+        let measured = std::sync::Arc::new(MeasuredDepth {
+            keyframe: sensor,
+            depth,
+            noise_at_1m: Some(0.001),
+        });
+        let scene = scene.with_measured(&[measured]);
+        // Listed in the other order: labels follow the list.
+        let listed = vec![instances[1].clone(), instances[0].clone()];
+        let masks = masks(&scene, &listed, &[]);
+        let (sizes, label) = stamps_sizes_and_middle_row(&masks);
+        assert_eq!(
+            sizes,
+            vec![(6, 128, 96), (5, 64, 48)],
+            "measured, then the render"
+        );
+        // Left wall (listed second), right wall (listed first), the far wall nobody listed.
+        assert_eq!((label(40), label(88), label(2)), (2, 1, 0));
+    }
+
     #[test]
     fn an_answer_s_masks_are_at_the_sensor_s_resolution_where_the_snapshot_kept_its_depth() {
         use crate::frame::MeasuredDepth;
@@ -740,23 +852,12 @@ mod tests {
         };
         let gaussians = vec![scene.gaussians("inst_000002")];
         let reply = response(&answer, &scene, &gaussians, "map", None);
-        let sizes: Vec<(i64, u32, u32)> = reply
-            .view_masks
-            .iter()
-            .map(|m| (m.header.stamp.as_nanos(), m.mask.width, m.mask.height))
-            .collect();
+        let (sizes, labelled) = stamps_sizes_and_middle_row(&reply.view_masks);
         assert_eq!(
             sizes,
             vec![(6, 128, 96), (5, 64, 48)],
             "measured, then splats"
         );
-        let labelled = |x: usize| {
-            let o = 2 * (48 * 128 + x);
-            u16::from_le_bytes([
-                reply.view_masks[0].mask.data[o],
-                reply.view_masks[0].mask.data[o + 1],
-            ])
-        };
         assert_eq!(
             (labelled(40), labelled(88)),
             (0, 1),

@@ -325,7 +325,7 @@ pub(super) fn answer_volume(scene: &ReferScene, ids: &[String]) -> Option<Answer
 
 /// The answer's labels in the snapshot's `k`-th keyframe: at the sensor's resolution, cut by its
 /// depth, where the snapshot kept it; otherwise its splats at the keyframe's.
-pub(super) fn keyframe_labels<'s>(
+pub(crate) fn keyframe_labels<'s>(
     scene: &'s ReferScene,
     k: usize,
     keyframe: &'s Keyframe,
