@@ -20,6 +20,8 @@ const PART_COVERED: f32 = 0.5;
 pub(super) struct Association {
     /// Per window instance, the persistent instance it is a sighting of (`None`: born).
     pub(super) pairs: Vec<Option<usize>>,
+    /// Per window instance, whether its pair was found as a part (not one to one).
+    pub(super) from_parts: Vec<bool>,
     /// Per window instance, every persistent instance that passed the gate with it.
     gated: Vec<Vec<usize>>,
 }
@@ -47,6 +49,7 @@ pub(super) fn associate(
     let rows = window.len();
     let n = map.instances.len();
     let mut pairs: Vec<Option<usize>> = vec![None; rows];
+    let mut from_parts = vec![false; rows];
     let mut gated: Vec<Vec<usize>> = vec![Vec::new(); rows];
     // Columns: every persistent instance, plus one "new instance" column per row so that
     // rows ≤ columns and birth is always possible (score 0).
@@ -115,8 +118,13 @@ pub(super) fn associate(
             .filter(|&(_, covered)| covered >= PART_COVERED)
             .max_by(|a, b| a.1.total_cmp(&b.1))
             .map(|(j, _)| j);
+        from_parts[i] = pairs[i].is_some();
     }
-    Association { pairs, gated }
+    Association {
+        pairs,
+        from_parts,
+        gated,
+    }
 }
 
 impl Association {

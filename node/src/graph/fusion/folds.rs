@@ -47,7 +47,7 @@ const FRAGMENT_TOUCH: f32 = 0.02;
 /// the longest object of their name ([`Kinds::largest_side`]; the margin is for depth noise and
 /// boxes fitted to a few points): two chairs side by side touch and are named alike, but
 /// together they are twice as long as any chair.
-const FRAGMENT_SIDE_MARGIN: f64 = 1.5;
+pub(super) const FRAGMENT_SIDE_MARGIN: f64 = 1.5;
 
 /// A leg (or a side panel): an instance at most this thick along x or y (axis-aligned bounds),
 /// at least [`LEG_MIN_HEIGHT_M`] tall and twice as tall as it is thick.

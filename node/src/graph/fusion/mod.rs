@@ -1,10 +1,12 @@
 //! Fusion: one window's instances into the persistent map, in named steps ([`SceneMap::fuse`]):
 //! associate them with the persistent ones (3D overlap plus prototype similarity, Kuhn–Munkres,
-//! then parts: [`associate`]), merge each into its match or give it birth, let unmatched
+//! then parts: [`associate`]), split an instance the window saw as two alike objects
+//! ([`contested`]), merge each into its match or give it birth, let unmatched
 //! instances where a view sees free space lose confidence and die ([`free_space`]), fold what is
 //! one object ([`folds`]), and clear what lies beyond the clearing radius.
 
 mod associate;
+mod contested;
 mod folds;
 mod footprint;
 mod free_space;
@@ -102,23 +104,27 @@ impl SceneMap {
         views: &[WindowView],
         stamp_nanos: i64,
     ) -> Result<FusionReport, GraphError> {
-        self.fuse_with(window, views, stamp_nanos, &|_, _| true)
+        self.fuse_with(window, views, stamp_nanos, &|_, _| true, &|_| None)
     }
 
     /// [`SceneMap::fuse`], where map-level duplicates fold only if `same_kind` says so of
-    /// their prototypes.
+    /// their prototypes, and an instance is split only where `largest_side` knows its name's.
     fn fuse_with(
         &mut self,
         window: Vec<WindowInstance>,
         views: &[WindowView],
         stamp_nanos: i64,
         same_kind: &dyn Fn(&[f32], &[f32]) -> bool,
+        largest_side: &dyn Fn(&[f32]) -> Option<f64>,
     ) -> Result<FusionReport, GraphError> {
         let viewpoint = mean_camera_centre(views);
         let range_noise = range_noise_of(&window, views, viewpoint);
         validate(&window)?;
         let mut report = FusionReport::default();
-        let association = associate::associate(self, &window, same_kind);
+        let mut window = window;
+        let mut association = associate::associate(self, &window, same_kind);
+        let splits =
+            self.split_where_seen_as_two(&mut window, &mut association, same_kind, largest_side);
         let duplicates = association.duplicates(self, same_kind);
         let (matched, absorbed) = self.merge_or_birth(
             window,
@@ -132,6 +138,7 @@ impl SceneMap {
             &mut report,
         );
         self.record_seen_apart(&association, &report);
+        self.record_split_apart(&splits, &report);
         let mut keep: Vec<bool> = (0..self.instances.len())
             .map(|j| j >= absorbed.len() || !absorbed[j])
             .collect();
@@ -234,6 +241,15 @@ impl SceneMap {
         }
     }
 
+    /// Evidence from the splits ([`SceneMap::split_where_seen_as_two`]): the instance a window
+    /// saw as two and the one born from its part were seen apart.
+    fn record_split_apart(&mut self, splits: &[(usize, usize)], report: &FusionReport) {
+        for &(kept, part) in splits {
+            let (a, b) = (&report.assigned[kept], &report.assigned[part]);
+            self.seen_apart.insert((a.min(b).clone(), a.max(b).clone()));
+        }
+    }
+
     /// [`SceneMap::seen_apart`] as pairs of indices into `instances` (the smaller first).
     fn seen_apart_indices(&self) -> rustc_hash::FxHashSet<(usize, usize)> {
         if self.seen_apart.is_empty() {
@@ -332,7 +348,8 @@ impl SceneMap {
         kinds: impl Kinds,
     ) -> Result<FusionReport, GraphError> {
         let same_kind = |a: &[f32], b: &[f32]| kinds.same_kind(a, b);
-        let mut report = self.fuse_with(window, views, stamp_nanos, &same_kind)?;
+        let largest_side = |prototype: &[f32]| kinds.largest_side(prototype);
+        let mut report = self.fuse_with(window, views, stamp_nanos, &same_kind, &largest_side)?;
         // Pairs are judged again only where an instance changed: this window's (any other pair
         // was judged, as it is, by an earlier fusion), then, rule after rule, the survivors of
         // the last folds, until neither rule folds anything.
