@@ -7,12 +7,14 @@
 //! Without it the map's instances only ever grew: points went to whichever instance claimed the
 //! region first, and a row of identical objects that one window grouped as one stayed one
 //! instance after every later window had them apart (issue 30's note; the layouts split).
-//! Measured against no split (`eval map --against`, recall@0.25 / @0.5 / precision): layouts 0-19
-//! +2.3 / +2.3 / +1.7 points, benchmark 100-119 +0.6 / +0.6 / +0.1. Tried with it and not kept
-//! (each alone within -0.5 points on layouts 0-19, and on benchmark 100-119 nothing or a loss of
-//! precision): a window instance spanning instances seen apart giving each the points nearer
-//! it, duplicates revealed by association not folded when seen apart, and fragments alike and
-//! seen apart not folded (beds and sofas stayed in halves: precision -1.2).
+//! Measured against no split (`eval map --against`, recall@0.25 / @0.5 / precision, points):
+//! layouts 0-19 +2.8 / +2.8 / +1.8, layouts 40-59 +0.9 / +1.3 / +0.2, benchmark 7000-7019 +1.1 /
+//! +0.5 / +0.2, 8000-8019 -0.6 / +0.0 / -1.3, `realistic` 7000-7019 +0.6 / -0.6 / -0.9 (all within
+//! the spread). Tried with it and not kept (each alone within -0.5 points on layouts 0-19, and on
+//! benchmark 100-119 nothing or a loss of precision): a window instance spanning instances seen
+//! apart giving each the points nearer it, duplicates revealed by association not folded when
+//! seen apart, and fragments alike and seen apart not folded (beds and sofas stayed in halves:
+//! precision -1.2).
 
 use glam::Vec3;
 use rustc_hash::FxHashMap;
