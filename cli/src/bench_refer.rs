@@ -7,16 +7,13 @@ use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
 use anyhow::{Context, Result};
-use groupforward::frame::{Keyframe, MeasuredDepth, WindowInstance, WindowView};
+use groupforward::frame::WindowInstance;
 use groupforward::graph::{FusionParams, SceneMap};
 use groupforward::group::semantics::{
     default_vocabulary, Vocabulary, DEFAULT_SEMANTIC_TEMPERATURE,
 };
-use groupforward::model::reconstruction::resized_camera;
 use groupforward::model::text::TextEncoder;
 use groupforward::node::services::{current_snapshot, refer_request, Shared};
-use groupforward::recon::gaussians::Gaussians;
-use groupforward::recon::raster::{render, RasterSettings};
 use groupforward_msgs::gf_msgs::ReferRequest;
 
 use crate::bench_support::{bench_views, cube, line_chart};
@@ -34,45 +31,6 @@ const QUERIES: &[&str] = &[
     "the thing you can sleep on",
     "the garbage can",
 ];
-
-/// The bench's views as a 320 × 240 depth sensor measures them (the map's depth rendered there):
-/// answers' masks are cut by them, at that resolution, as on a robot.
-fn sensor_depths(map: &SceneMap, views: &[WindowView]) -> Vec<Arc<MeasuredDepth>> {
-    let mut all = Gaussians::with_dims(0, 0);
-    for instance in &map.instances {
-        all.extend_geometry(&instance.gaussians);
-    }
-    views
-        .iter()
-        .filter_map(|v| {
-            let camera = resized_camera(&v.keyframe.camera, 320, 240);
-            let world_from_camera = v.keyframe.world_from_camera;
-            let rendered = render(
-                &all,
-                &[],
-                0,
-                &camera,
-                &world_from_camera.inverse(),
-                &RasterSettings::default(),
-            )
-            .ok()?;
-            let depth = rendered
-                .depth
-                .iter()
-                .map(|d| if *d > 0.0 { *d } else { f32::NAN })
-                .collect();
-            Some(Arc::new(MeasuredDepth {
-                keyframe: Keyframe {
-                    stamp_nanos: v.keyframe.stamp_nanos,
-                    camera,
-                    world_from_camera,
-                },
-                depth,
-                noise_at_1m: None,
-            }))
-        })
-        .collect()
-}
 
 pub fn refer_bench(sizes: &[usize], rounds: usize, out: &Path) -> Result<()> {
     if let Some(parent) = out.parent() {
@@ -126,7 +84,7 @@ pub fn refer_bench(sizes: &[usize], rounds: usize, out: &Path) -> Result<()> {
             })
             .collect();
         map.fuse(instances, &views, 0)?;
-        let measured_views = sensor_depths(&map, &views);
+        let measured_views = crate::bench_support::sensor_depths(&map, &views);
         let mut shared = Shared {
             vocabulary: Some(vocabulary.clone()),
             text_encoder: Some(encoder.clone()),

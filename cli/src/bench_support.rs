@@ -1,8 +1,14 @@
 //! What the benchmarks share: synthetic map fixtures and the SVG charts they write.
 
 use std::path::Path;
+use std::sync::Arc;
 
 use anyhow::Result;
+use groupforward::frame::{Keyframe, MeasuredDepth, WindowView};
+use groupforward::graph::SceneMap;
+use groupforward::model::reconstruction::resized_camera;
+use groupforward::recon::gaussians::Gaussians;
+use groupforward::recon::raster::{render, RasterSettings};
 
 /// A cube of Gaussians (`side`³ on a 4 cm grid) centred at `center`.
 pub(crate) fn cube(center: glam::Vec3, side: usize) -> groupforward::recon::gaussians::Gaussians {
@@ -175,4 +181,43 @@ where
         .draw()
         .map_err(|e| anyhow::anyhow!("{e}"))?;
     Ok(())
+}
+
+/// The bench's views as a 320 × 240 depth sensor measures them (the map's depth rendered there):
+/// answers' and published masks are cut by them, at that resolution, as on a robot.
+pub(crate) fn sensor_depths(map: &SceneMap, views: &[WindowView]) -> Vec<Arc<MeasuredDepth>> {
+    let mut all = Gaussians::with_dims(0, 0);
+    for instance in &map.instances {
+        all.extend_geometry(&instance.gaussians);
+    }
+    views
+        .iter()
+        .filter_map(|v| {
+            let camera = resized_camera(&v.keyframe.camera, 320, 240);
+            let world_from_camera = v.keyframe.world_from_camera;
+            let rendered = render(
+                &all,
+                &[],
+                0,
+                &camera,
+                &world_from_camera.inverse(),
+                &RasterSettings::default(),
+            )
+            .ok()?;
+            let depth = rendered
+                .depth
+                .iter()
+                .map(|d| if *d > 0.0 { *d } else { f32::NAN })
+                .collect();
+            Some(Arc::new(MeasuredDepth {
+                keyframe: Keyframe {
+                    stamp_nanos: v.keyframe.stamp_nanos,
+                    camera,
+                    world_from_camera,
+                },
+                depth,
+                noise_at_1m: None,
+            }))
+        })
+        .collect()
 }
