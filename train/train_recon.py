@@ -129,6 +129,8 @@ def main():
                              '(gf.losses.ROOM_VOTE) instead of having no vote target')
     parser.add_argument('--hard-push', action='store_true',
                         help='push hinge averaged over the violating centroid pairs only (gf.losses.direct_losses)')
+    parser.add_argument('--touching-push', type=float, default=0.0,
+                        help='weight of the push hinge over touching same-class instances (gf.losses.touching_pairs)')
     parser.add_argument('--direct-assignment', type=float, nargs='?', const=1.0, default=0.0,
                         help='dice + focal on the unrendered assignment probabilities of sampled pixels '
                              '(gf.losses.assignment_losses), weighted as the rendered ones times this '
@@ -256,7 +258,8 @@ def main():
                 if sweep_depth is not None:
                     # Trains the matching features directly (nearest-neighbour half-resolution truth).
                     l_depth = l_depth + args.sweep_depth * depth_loss(sweep_depth, batch['depth'][:, :, ::2, ::2])
-                pull, push = direct_losses(embeddings, batch['instance'], generator=generator, hard_push=args.hard_push)
+                pull, push = direct_losses(embeddings, batch['instance'], generator=generator, hard_push=args.hard_push,
+                                           klass=batch['class'], touching_weight=args.touching_push)
                 l_assignment = torch.zeros(())
                 if args.direct_assignment:
                     dice, focal = assignment_losses(embeddings, batch['instance'], generator=generator)

@@ -38,23 +38,58 @@ def sample_pixels(instance, count, generator=None):
 def sampled_embeddings(embeddings, instance, samples, generator=None):
     """Sampled pixels of one window (embeddings [V,D,H,W], instance [V,H,W]): their unit embeddings
     [N,D], instance labels 0..K-1 [N] and the unit centroids [K,D] of each instance's samples."""
+    e, labels, centroids, _ = sampled_with_ids(embeddings, instance, samples, generator)
+    return e, labels, centroids
+
+
+def sampled_with_ids(embeddings, instance, samples, generator=None):
+    """`sampled_embeddings` and the instance id [K] of each centroid."""
     e = embeddings.permute(0, 2, 3, 1).reshape(-1, embeddings.shape[1])
     y = instance.reshape(-1)
     index = sample_pixels(y, samples, generator)
     e = F.normalize(e[index], dim=1)
     ids, labels = torch.unique(y[index], return_inverse=True)
     centroids = F.normalize(torch.zeros(ids.numel(), e.shape[1]).index_add_(0, labels, e), dim=1)
-    return e, labels, centroids
+    return e, labels, centroids, ids
 
 
-def direct_losses(embeddings, instance, samples=4096, generator=None, hard_push=False):
+def touching_pairs(instance, klass):
+    """Pairs of objects of one class whose pixels are 4-neighbours in some view of one window
+    (instance, klass [V,H,W]; the room, id 0, left out): [P,2] instance ids, the smaller first.
+    These are the pairs a grouping folds into one (a row of cabinets, two chairs side by side)."""
+    keys = []
+    for dy, dx in ((0, 1), (1, 0)):
+        height, width = instance.shape[1] - dy, instance.shape[2] - dx
+        a, b = instance[:, :height, :width], instance[:, dy:, dx:]
+        same_class = klass[:, :height, :width] == klass[:, dy:, dx:]
+        border = (a != b) & (a > 0) & (b > 0) & same_class
+        low, high = torch.minimum(a[border], b[border]), torch.maximum(a[border], b[border])
+        keys.append(low * 65536 + high)
+    keys = torch.unique(torch.cat(keys))
+    return torch.stack([keys // 65536, keys % 65536], dim=1)
+
+
+def touching_push(centroids, ids, pairs):
+    """Mean push hinge over the touching pairs whose both instances were sampled (0 when none)."""
+    index = {int(i): k for k, i in enumerate(ids.tolist())}
+    sampled = [(index[int(a)], index[int(b)]) for a, b in pairs.tolist() if int(a) in index and int(b) in index]
+    if not sampled:
+        return torch.zeros(())
+    first, second = (torch.tensor(side) for side in zip(*sampled))
+    return F.relu(MARGIN - (centroids[first] - centroids[second]).norm(dim=1)).mean()
+
+
+def direct_losses(embeddings, instance, samples=4096, generator=None, hard_push=False, klass=None,
+                  touching_weight=0.0):
     """embeddings [B,V,D,H,W], instance [B,V,H,W] -> (pull, push) averaged over the batch.
     `hard_push` (an experiment, off by default) averages the push hinge over the violating pairs only,
     not over all k ≠ l: with a dozen instances in a window, most pairs are already apart and the
-    plain mean dilutes the few close ones (a pillow on its bed) by the number of pairs."""
+    plain mean dilutes the few close ones (a pillow on its bed) by the number of pairs.
+    `touching_weight` (with `klass` [B,V,H,W]) adds that times the mean hinge over the touching
+    same-class pairs (`touching_pairs`), which the plain mean dilutes the same way."""
     pulls, pushes = [], []
     for b in range(embeddings.shape[0]):
-        e, labels, centroids = sampled_embeddings(embeddings[b], instance[b], samples, generator)
+        e, labels, centroids, ids = sampled_with_ids(embeddings[b], instance[b], samples, generator)
         k = centroids.shape[0]
         pulls.append((e - centroids[labels]).norm(dim=1).mean())
         if k > 1:
@@ -62,9 +97,12 @@ def direct_losses(embeddings, instance, samples=4096, generator=None, hard_push=
             off_diagonal = ~torch.eye(k, dtype=torch.bool)
             hinge = F.relu(MARGIN - distances[off_diagonal])
             if hard_push:
-                pushes.append(hinge.sum() / (hinge > 0).sum().clamp_min(1))
+                push = hinge.sum() / (hinge > 0).sum().clamp_min(1)
             else:
-                pushes.append(hinge.mean())
+                push = hinge.mean()
+            if touching_weight > 0 and klass is not None:
+                push = push + touching_weight * touching_push(centroids, ids, touching_pairs(instance[b], klass[b]))
+            pushes.append(push)
         else:
             pushes.append(torch.zeros(()))
     return torch.stack(pulls).mean(), torch.stack(pushes).mean()
