@@ -193,7 +193,7 @@ pub fn cloud(
 /// Per keyframe of the snapshot (the last window's views, newest first), the label image of the
 /// listed instances, 0 where none is (structure included). Where the snapshot kept the sensor's
 /// depth for the keyframe, at the sensor's resolution: a pixel is the listed instance whose map
-/// points its reading lies on ([`crate::refer::masks::measured_labels`]; the splats where it read
+/// points its reading lies on ([`crate::refer::masks::measured_labels`]; 0 where it read
 /// nothing). Otherwise at the model's resolution: the snapshot's whole-map render (nearest surface
 /// wins, so what structure or other instances hide stays out). `sources` name each keyframe's
 /// camera and optical frame (by stamp); a keyframe without one has empty names.
@@ -231,17 +231,16 @@ pub fn masks(
 
 /// The listed instances as the snapshot's map holds them, each with its label (1 + its place in
 /// the list), and the map's points around them for masks cut by measured depth.
-struct ListedLabels<'s> {
+struct ListedLabels {
     /// Per map instance, its label (0: not listed).
     label_of_map: Vec<u16>,
-    /// The listed instances the map holds: their Gaussians and labels, in the same order.
-    gaussians: Vec<&'s Gaussians>,
+    /// The labels of the listed instances the map holds, in the map's order.
     labels: Vec<u16>,
     volume: Option<crate::refer::masks::AnswerVolume>,
 }
 
-impl<'s> ListedLabels<'s> {
-    fn new(scene: &'s ReferScene, instances: &[Instance]) -> Self {
+impl ListedLabels {
+    fn new(scene: &ReferScene, instances: &[Instance]) -> Self {
         let position: HashMap<&str, u16> = instances
             .iter()
             .enumerate()
@@ -265,7 +264,6 @@ impl<'s> ListedLabels<'s> {
             .then(|| crate::refer::masks::AnswerVolume::new(&all, &chosen))
             .flatten();
         Self {
-            gaussians: chosen.iter().map(|&m| all[m]).collect(),
             labels: chosen.iter().map(|&m| label_of_map[m]).collect(),
             label_of_map,
             volume,
@@ -279,22 +277,21 @@ impl<'s> ListedLabels<'s> {
         k: usize,
         keyframe: &'a Keyframe,
     ) -> (&'a Keyframe, Vec<u16>) {
-        if scene.measured.get(k).is_some_and(Option::is_some) {
-            let (view, found) = crate::refer::masks::keyframe_labels(
-                scene,
-                k,
-                keyframe,
-                &self.gaussians,
-                self.volume.as_ref(),
-            );
+        let measured = scene.measured.get(k).and_then(Option::as_ref);
+        if let (Some(m), Some(volume)) = (measured, self.volume.as_ref()) {
+            // Where the sensor read nothing the pixel is 0: the splats an answer falls back to
+            // there would be drawn over every listed instance, several times the cost of the
+            // rest (`bench outputs`).
+            let found =
+                crate::refer::masks::measured_labels(volume, &m.keyframe, &m.depth, m.noise_at_1m);
             let labels = found
                 .iter()
                 .map(|&f| match f {
-                    0 => 0,
-                    f => self.labels.get(usize::from(f) - 1).copied().unwrap_or(0),
+                    None | Some(0) => 0,
+                    Some(f) => self.labels.get(usize::from(f) - 1).copied().unwrap_or(0),
                 })
                 .collect();
-            return (view, labels);
+            return (&m.keyframe, labels);
         }
         let pixels = scene.labels.get(k).map_or(&[][..], Vec::as_slice);
         let labels = pixels
@@ -795,8 +792,13 @@ mod tests {
             camera: Camera::from_fov(128, 96, 1.2).unwrap(),
             world_from_camera: Rigid::default(),
         };
+        // One pixel of the right wall without a reading.
         let depth = (0..128 * 96)
-            .map(|p| if p % 128 < 8 { 3.0 } else { 2.0 })
+            .map(|p| match p {
+                p if p == 48 * 128 + 100 => f32::NAN,
+                p if p % 128 < 8 => 3.0,
+                _ => 2.0,
+            })
             .collect();
         let measured = std::sync::Arc::new(MeasuredDepth {
             keyframe: sensor,
@@ -813,8 +815,9 @@ mod tests {
             vec![(6, 128, 96), (5, 64, 48)],
             "measured, then the render"
         );
-        // Left wall (listed second), right wall (listed first), the far wall nobody listed.
-        assert_eq!((label(40), label(88), label(2)), (2, 1, 0));
+        // Left wall (listed second), right wall (listed first), the far wall nobody listed, and
+        // the pixel the sensor read nothing at.
+        assert_eq!((label(40), label(88), label(2), label(100)), (2, 1, 0, 0));
     }
 
     #[test]
