@@ -126,10 +126,9 @@ fn partition(g: &Gaussians, owner: &[usize], owners: usize) -> Vec<Gaussians> {
 impl SceneMap {
     /// Split each persistent instance one window saw as two alike objects (see the module
     /// notes): a window instance that joined a persistent instance only as a part, while
-    /// another window instance alike it (both objects, named alike, of about one size) matched
-    /// that instance, is born instead, with the persistent instance's points nearer its own than
-    /// the matched one's. Returns the (matched, split) window-instance pairs, which the window
-    /// saw apart.
+    /// another window instance alike it matched that instance, is born instead, with the
+    /// persistent instance's points nearer its own than the matched one's. Returns the (matched,
+    /// split) window-instance pairs, which the window saw apart.
     pub(super) fn split_where_seen_as_two(
         &mut self,
         window: &mut [WindowInstance],
@@ -142,48 +141,67 @@ impl SceneMap {
             let Some(j) = association.pairs[part].filter(|_| association.from_parts[part]) else {
                 continue;
             };
-            let Some(keeper) = (0..window.len())
+            let Some(kept) = (0..window.len())
                 .find(|&k| association.pairs[k] == Some(j) && !association.from_parts[k])
             else {
                 continue;
             };
-            let (a, b) = (&window[keeper], &window[part]);
-            let named_alike = names_an_object(same_kind, &a.prototype)
-                && names_an_object(same_kind, &b.prototype)
-                && same_kind(&a.prototype, &b.prototype);
-            if !named_alike || !alike(&a.gaussians.means, &b.gaussians.means) {
+            if !self.seen_as_two(j, &window[kept], &window[part], same_kind, largest_side) {
                 continue;
             }
-            // Two halves of one bed are alike too: split only what is longer than any one
-            // object of its name (a name without that prior is never split).
-            let Some(side) = largest_side(&a.prototype) else {
-                continue;
-            };
-            let spanned: Vec<Vec3> = self.instances[j]
-                .gaussians
-                .means
-                .iter()
-                .chain(&a.gaussians.means)
-                .chain(&b.gaussians.means)
-                .copied()
-                .collect();
-            if OrientedBox::principal_length(&spanned, DEFAULT_TRIM) <= SPLIT_SIDE_MARGIN * side {
-                continue;
-            }
-            let owner = nearest_owner(
-                &self.instances[j].gaussians.means,
-                &[&a.gaussians.means, &b.gaussians.means],
-            );
-            let mut shares = partition(&self.instances[j].gaussians, &owner, 2).into_iter();
-            let (kept, given) = (shares.next(), shares.next());
-            if let (Some(kept), Some(given)) = (kept, given) {
-                self.instances[j].gaussians = kept;
-                window[part].gaussians.extend(&given);
+            let given = self.give_away(j, &window[kept].gaussians, &window[part].gaussians);
+            let w = &mut window[part].gaussians;
+            if (given.embedding_dim, given.extra_dim) == (w.embedding_dim, w.extra_dim) {
+                w.extend(&given);
             }
             association.pairs[part] = None;
-            splits.push((keeper, part));
+            splits.push((kept, part));
         }
         splits
+    }
+
+    /// Whether sightings `a` (matched to instance `j`) and `b` (lying on it as a part) are two
+    /// objects: both objects, named alike, of about one size ([`alike`]), and together with `j`
+    /// longer than one object of their name could be ([`SPLIT_SIDE_MARGIN`]; two halves of one bed
+    /// are alike too; a name without that prior is never split).
+    fn seen_as_two(
+        &self,
+        j: usize,
+        a: &WindowInstance,
+        b: &WindowInstance,
+        same_kind: &dyn Fn(&[f32], &[f32]) -> bool,
+        largest_side: &dyn Fn(&[f32]) -> Option<f64>,
+    ) -> bool {
+        let named_alike = names_an_object(same_kind, &a.prototype)
+            && names_an_object(same_kind, &b.prototype)
+            && same_kind(&a.prototype, &b.prototype);
+        if !named_alike || !alike(&a.gaussians.means, &b.gaussians.means) {
+            return false;
+        }
+        let Some(side) = largest_side(&a.prototype) else {
+            return false;
+        };
+        let spanned: Vec<Vec3> = self.instances[j]
+            .gaussians
+            .means
+            .iter()
+            .chain(&a.gaussians.means)
+            .chain(&b.gaussians.means)
+            .copied()
+            .collect();
+        OrientedBox::principal_length(&spanned, DEFAULT_TRIM) > SPLIT_SIDE_MARGIN * side
+    }
+
+    /// Instance `j` keeps its points nearer `kept`'s than `given`'s and returns the others.
+    fn give_away(&mut self, j: usize, kept: &Gaussians, given: &Gaussians) -> Gaussians {
+        let points = &self.instances[j].gaussians;
+        let owner = nearest_owner(&points.means, &[&kept.means, &given.means]);
+        let mut shares = partition(points, &owner, 2).into_iter();
+        let (Some(own), Some(away)) = (shares.next(), shares.next()) else {
+            return Gaussians::with_dims(points.embedding_dim, points.extra_dim);
+        };
+        self.instances[j].gaussians = own;
+        away
     }
 }
 
