@@ -10,7 +10,7 @@ use anyhow::{Context, Result};
 use groupforward::window::WindowModels;
 use groupforward_harness::eval::baseline::FeatureVoxels;
 use groupforward_harness::eval::refer::{
-    ask_scene, held_out_views, ReferRecord, Referrer, SceneTruth, Truth,
+    ask_scene, held_out_views, published_mask_iou, ReferRecord, Referrer, SceneTruth, Truth,
 };
 use groupforward_harness::eval::run::{record_scene, replay_scene_with};
 use groupforward_harness::eval::score::TruthObject;
@@ -180,6 +180,8 @@ pub fn eval_refer(
     let bar = progress_bar(files.len() as u64, "eval refer");
     let mut records = Vec::new();
     let mut baseline_rows = Vec::new();
+    // Per scene, the published masks' mIoU (found objects, held-out views).
+    let mut published = Vec::new();
     for file in files {
         bar.set_message(file.name.clone());
         let mut voxels = FeatureVoxels::default();
@@ -219,6 +221,9 @@ pub fn eval_refer(
             objects: &run.objects,
             views: &views,
         };
+        if let Some(iou) = published_mask_iou(run.map.clone(), &referrer, &run.objects, &views) {
+            published.push(iou);
+        }
         let mut asked_records = ask_scene(&file.name, run.map, &referrer, truth, &asked);
         if let Some(lines) = &given {
             // A user's expression without a relation, or with a label of their own, is scored in
@@ -248,14 +253,16 @@ pub fn eval_refer(
         bar.inc(1);
     }
     bar.finish_and_clear();
-    write_outputs(&records, out)?;
+    let published_miou =
+        (!published.is_empty()).then(|| published.iter().sum::<f64>() / published.len() as f64);
+    write_outputs(&records, published_miou, out)?;
     if baseline {
         crate::eval_baseline::write_baseline(&baseline_rows, out)?;
     }
     Ok(())
 }
 
-fn write_outputs(records: &[ReferRecord], out: &Path) -> Result<()> {
+fn write_outputs(records: &[ReferRecord], published_miou: Option<f64>, out: &Path) -> Result<()> {
     let mut csv = std::io::BufWriter::new(std::fs::File::create(out.join("expressions.csv"))?);
     writeln!(
         csv,
@@ -358,6 +365,7 @@ fn write_outputs(records: &[ReferRecord], out: &Path) -> Result<()> {
         "query_p50_ms": percentile(0.5),
         "query_p99_ms": percentile(0.99),
         "queries": all.len(),
+        "published_masks_miou": published_miou,
         "targets_observed": seen,
         "refusals": refusals,
         "every_object": every,
@@ -386,6 +394,11 @@ fn write_outputs(records: &[ReferRecord], out: &Path) -> Result<()> {
     }
     std::fs::write(out.join("summary.md"), &table)?;
     print!("{table}");
+    if let Some(miou) = published_miou {
+        println!(
+            "published masks (~/instance_masks: each listed instance that found an object, in held-out views at the sensor's resolution): mIoU {miou:.3}, mean over scenes"
+        );
+    }
     println!(
         "query latency (parse to response, through the service handler): p50 {:.1} ms, p99 {:.1} ms over {} queries; wrote {}",
         percentile(0.5),

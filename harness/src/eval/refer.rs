@@ -25,7 +25,7 @@ use groupforward::recon::depth_noise::noise_at_1m;
 use groupforward::recon::gaussians::Gaussians;
 use groupforward::recon::raster::{render, RasterSettings};
 use groupforward::recon::Rigid;
-use groupforward::refer::masks::{answer_labels, AnswerVolume};
+use groupforward::refer::masks::{answer_labels, measured_labels, AnswerVolume};
 use groupforward::refer::response::pose_box;
 use groupforward::refer::ReferSection;
 use groupforward_sim::simulation::Simulation;
@@ -273,14 +273,8 @@ fn is_refusal(response: &ReferResponse) -> bool {
 }
 
 /// Ask every expression of a scene on its final `map` and score the answers, each by its truth.
-pub fn ask_scene(
-    scene: &str,
-    map: SceneMap,
-    referrer: &Referrer,
-    truth: SceneTruth<'_>,
-    expressions: &[(Expression, Truth)],
-) -> Vec<ReferRecord> {
-    let SceneTruth { objects, views } = truth;
+/// The node's shared state holding `map`, as the referrer configures it (its object list made).
+fn shared_for(map: SceneMap, referrer: &Referrer) -> Shared {
     let mut shared = Shared {
         vocabulary: referrer.vocabulary.clone(),
         text_encoder: referrer.encoder.clone(),
@@ -289,6 +283,73 @@ pub fn ask_scene(
         ..Shared::default()
     };
     shared.set_map(map);
+    shared
+}
+
+/// Mean IoU of the published masks against the ground truth: every listed instance labelled as
+/// `~/instance_masks` draws it (the instance whose map points a pixel's measured depth lies on; 0
+/// where the sensor read nothing), in the held-out views with measured depth, for each listed
+/// instance that found an object (box IoU >= 0.25) in each view where it or its object shows.
+/// `None` without measured depth or a found object.
+pub fn published_mask_iou(
+    map: SceneMap,
+    referrer: &Referrer,
+    objects: &[TruthObject],
+    views: &[HeldOutView],
+) -> Option<f64> {
+    let shared = shared_for(map, referrer);
+    let index: std::collections::HashMap<&str, usize> = shared
+        .map
+        .instances
+        .iter()
+        .enumerate()
+        .map(|(k, i)| (i.id.as_str(), k))
+        .collect();
+    let found: Vec<(usize, u16)> = shared
+        .instances
+        .iter()
+        .filter_map(|i| {
+            let (object, iou) = matched_object(&instance_box(i), objects);
+            (iou >= FOUND_IOU).then_some((*index.get(i.id.as_str())?, object))
+        })
+        .collect();
+    let instances: Vec<&Gaussians> = shared.map.instances.iter().map(|i| &i.gaussians).collect();
+    let chosen: Vec<usize> = found.iter().map(|f| f.0).collect();
+    let volume = AnswerVolume::new(&instances, &chosen)?;
+    let mut ious = Vec::new();
+    for view in views {
+        let Some(depth) = view.measured_depth.as_deref() else {
+            continue;
+        };
+        let labels = measured_labels(&volume, &view.keyframe, depth, view.noise_at_1m);
+        for (k, &(_, object)) in found.iter().enumerate() {
+            let label = Some((k + 1) as u16);
+            let (mut inter, mut union) = (0usize, 0usize);
+            for (l, t) in labels.iter().zip(&view.truth) {
+                let (p, t) = (*l == label, *t == object);
+                inter += usize::from(p && t);
+                union += usize::from(p || t);
+            }
+            if union > 0 {
+                ious.push(inter as f64 / union as f64);
+            }
+        }
+    }
+    (!ious.is_empty()).then(|| ious.iter().sum::<f64>() / ious.len() as f64)
+}
+
+/// A listed instance found an object at this box IoU (`eval map`'s recall@0.25).
+const FOUND_IOU: f64 = 0.25;
+
+pub fn ask_scene(
+    scene: &str,
+    map: SceneMap,
+    referrer: &Referrer,
+    truth: SceneTruth<'_>,
+    expressions: &[(Expression, Truth)],
+) -> Vec<ReferRecord> {
+    let SceneTruth { objects, views } = truth;
+    let shared = shared_for(map, referrer);
     // The map's instances as objects: which targets the map holds at all.
     let in_map: Vec<u16> = shared
         .instances
@@ -380,6 +441,94 @@ pub fn ask_scene(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use groupforward::frame::WindowInstance;
+    use groupforward::graph::FusionParams;
+
+    /// A 1 m high panel of Gaussians at depth `z` and 4 cm behind it (camera frame = world
+    /// frame) over x0..x1: a box with a volume to match.
+    fn panel(x0: f32, x1: f32, z: f32) -> Gaussians {
+        let mut g = Gaussians::with_dims(0, 0);
+        for i in 0..=((x1 - x0) / 0.02).round() as usize {
+            for j in 0..=50 {
+                for depth in [z, z + 0.04] {
+                    let p = glam::Vec3::new(x0 + i as f32 * 0.02, -0.5 + j as f32 * 0.02, depth);
+                    let (scale, rotation) = (glam::Vec3::splat(0.02), glam::Quat::IDENTITY);
+                    g.push(p, 0.99, scale, rotation, glam::Vec3::ONE, &[], &[]);
+                }
+            }
+        }
+        g
+    }
+
+    #[test]
+    fn published_masks_score_high_on_their_own_objects_and_nothing_on_swapped_ones() {
+        let mut map = SceneMap::new(FusionParams::default());
+        let sides = [(-0.6, -0.02), (0.02, 0.6)];
+        for (k, (x0, x1)) in sides.into_iter().enumerate() {
+            let sighting = WindowInstance {
+                gaussians: panel(x0, x1, 2.0),
+                prototype: vec![1.0, k as f32],
+                support: 10,
+            };
+            map.fuse(vec![sighting], &[], k as i64).unwrap();
+        }
+        let referrer = Referrer {
+            vocabulary: None,
+            encoder: None,
+            section: ReferSection::default(),
+        };
+        // The objects are where the map lists its instances (boxes are the map's business and
+        // `eval map`'s; the masks are scored here): 7 on the left, 9 on the right.
+        let objects: Vec<TruthObject> = shared_for(map.clone(), &referrer)
+            .instances
+            .iter()
+            .map(|i| {
+                let bbox = instance_box(i);
+                TruthObject {
+                    id: if bbox.centre.x < 0.0 { 7 } else { 9 },
+                    class: "wall".into(),
+                    bbox,
+                    pixels: 10_000,
+                }
+            })
+            .collect();
+        assert_eq!(objects.len(), 2);
+        // The sensor saw both panels at 2 m; the truth image has object 7 on the left of x = 0.
+        let camera = Camera::from_fov(64, 48, 1.2).unwrap();
+        let column_x = |u: usize| (u as f64 - camera.cx) / camera.fx * 2.0;
+        let truth_of = |left: u16, right: u16| -> Vec<u16> {
+            (0..64 * 48)
+                .map(|p| {
+                    let (x, y) = (column_x(p % 64), (p / 64) as f64);
+                    let y = (y - camera.cy) / camera.fy * 2.0;
+                    match (x, y.abs() <= 0.5) {
+                        (x, true) if (-0.6..-0.02).contains(&x) => left,
+                        (x, true) if (0.02..0.6).contains(&x) => right,
+                        _ => 0,
+                    }
+                })
+                .collect()
+        };
+        let view = |truth: Vec<u16>| HeldOutView {
+            keyframe: Keyframe {
+                stamp_nanos: 1,
+                camera,
+                world_from_camera: Rigid::default(),
+            },
+            truth,
+            measured_depth: Some(vec![2.0; 64 * 48]),
+            noise_at_1m: None,
+            scene_depth: Vec::new(),
+        };
+        let right = published_mask_iou(map.clone(), &referrer, &objects, &[view(truth_of(7, 9))]);
+        assert!(right.is_some_and(|iou| iou > 0.8), "{right:?}");
+        let swapped = published_mask_iou(map.clone(), &referrer, &objects, &[view(truth_of(9, 7))]);
+        assert!(swapped.is_some_and(|iou| iou < 0.05), "{swapped:?}");
+        // Without measured depth there is nothing to score.
+        let mut blind = view(truth_of(7, 9));
+        blind.measured_depth = None;
+        assert_eq!(published_mask_iou(map, &referrer, &objects, &[blind]), None);
+    }
 
     #[test]
     fn only_an_answer_without_instances_that_says_why_is_a_refusal() {
