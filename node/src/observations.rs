@@ -106,13 +106,34 @@ impl Observations {
     }
 
     /// Keep what `view` shows of each instance where it beats that instance's kept ones, and
-    /// its picture when it is the newest.
+    /// its picture when it is the newest ([`Observations::add_views`] of one view).
     pub fn add_view(&mut self, view: &ObservedView<'_>) {
-        // The model saw the undistorted image: crops come from the same one, undistorted once
-        // for the view and only when something is kept from it.
-        let mut image: Option<Cow<'_, RgbImage>> = None;
-        self.keep_instances(view, &mut image);
-        let frame = view.frame;
+        self.add_views(std::slice::from_ref(view));
+    }
+
+    /// Keep what each of a window's `views` shows of each instance where it beats that
+    /// instance's kept ones, and the picture of the newest of them when it is newer than the one
+    /// kept (one picture per window: the others would be replaced at once).
+    pub fn add_views(&mut self, views: &[ObservedView<'_>]) {
+        let newest = views
+            .iter()
+            .enumerate()
+            .max_by_key(|(_, v)| v.frame.stamp_nanos)
+            .map(|(k, _)| k);
+        for (k, view) in views.iter().enumerate() {
+            // The model saw the undistorted image: crops come from the same one, undistorted
+            // once for the view and only when something is kept from it.
+            let mut image: Option<Cow<'_, RgbImage>> = None;
+            self.keep_instances(view, &mut image);
+            if Some(k) == newest {
+                self.keep_picture(view.frame, image);
+            }
+        }
+    }
+
+    /// `frame`'s picture (`image`: its undistorted picture, if made already) as the newest,
+    /// unless a newer one is kept.
+    fn keep_picture(&mut self, frame: &SyncedFrame, image: Option<Cow<'_, RgbImage>>) {
         if self
             .newest
             .as_ref()
@@ -421,6 +442,14 @@ mod tests {
         assert_eq!((picture.image.width, picture.image.height), (320, 240));
         assert_eq!(picture.image, newer.rgb);
         assert!(picture.keyframe.camera.distortion.is_zero());
+        // A window's views, newest first: its newest picture is kept, and the crops of all.
+        let mut window = Observations::default();
+        window.add_views(&[
+            view(&newer, vec![None; 80 * 60]),
+            view(&older, owners("inst_000001", (0, 0, 20, 20))),
+        ]);
+        assert_eq!(window.newest().unwrap().keyframe.stamp_nanos, 2);
+        assert_eq!(window.of("inst_000001").len(), 1);
     }
 
     #[test]

@@ -315,13 +315,14 @@ fn keep_observations(
 ) {
     observations.follow_folds(&report.absorbed);
     let mut start = 0;
+    let mut observed = Vec::new();
     for (frame, view) in frames.iter().zip(views) {
         let (width, height) = (
             view.keyframe.camera.width as usize,
             view.keyframe.camera.height as usize,
         );
         let Some(pixels) = pixel_instances.get(start..start + width * height) else {
-            return;
+            break;
         };
         start += width * height;
         let owners = pixels
@@ -333,13 +334,14 @@ fn keep_observations(
                     .map(String::as_str)
             })
             .collect();
-        observations.add_view(&ObservedView {
+        observed.push(ObservedView {
             frame,
             width,
             height,
             owners,
         });
     }
+    observations.add_views(&observed);
 }
 
 #[cfg(test)]

@@ -124,7 +124,83 @@ fn images(
         camera,
         ..keyframe.clone()
     };
-    // One render of the whole map with an owner channel: colour, and which instance is in front.
+    let observed = |k: usize| {
+        let id = &scene.nodes[answer.candidates[k].index].id;
+        scene.observations.of(id).first().cloned()
+    };
+    let picture = scene.observations.newest();
+    // The map is rendered only where a picture is missing: for the overview without the
+    // camera's newest picture, or for a candidate the camera's pictures do not show.
+    let rendered =
+        if picture.is_none() || (0..answer.candidates.len()).any(|k| observed(k).is_none()) {
+            let Some(rendered) = map_render(scene, answer, gaussians, &view) else {
+                return Vec::new();
+            };
+            Some(rendered)
+        } else {
+            None
+        };
+    let overview = match (picture, &rendered) {
+        (Some(picture), _) => outlined(scene, answer, &picture.image, &picture.keyframe),
+        (None, Some((base, _))) => outlined(scene, answer, base, &view),
+        (None, None) => return Vec::new(),
+    };
+    let mut out = vec![("overview".to_owned(), overview)];
+    for k in 0..answer.candidates.len() {
+        if out.len() >= max_images {
+            break;
+        }
+        // Where the camera's own picture of it was kept, that is what the reasoner sees;
+        // otherwise its visible pixels in the render.
+        let colour = PALETTE[k % PALETTE.len()];
+        let image = match (observed(k), &rendered) {
+            (Some(o), _) => highlighted(&o.image, &o.mask, colour),
+            (None, Some((base, owner))) => {
+                let mask: Vec<bool> = owner.iter().map(|o| *o == k + 1).collect();
+                highlighted(base, &mask, colour)
+            }
+            (None, None) => continue,
+        };
+        out.push((format!("candidate_{}", k + 1), image));
+    }
+    // Then per candidate an object-centred crop and its local context (three times the box).
+    for (scale, name) in [(1.2, "crop"), (3.0, "context")] {
+        for (k, c) in answer.candidates.iter().enumerate() {
+            if out.len() >= max_images {
+                break;
+            }
+            if let Some(o) = observed(k) {
+                let image = match name {
+                    "crop" => mask_crop(&o.image, &o.mask, scale),
+                    _ => Some(o.image.clone()),
+                };
+                if let Some(image) = image {
+                    out.push((format!("candidate_{}_{name}", k + 1), image));
+                }
+                continue;
+            }
+            let projected = projected_box(&scene.nodes[c.index], &view);
+            if let (Some((lo, hi)), Some((base, _))) = (projected, &rendered) {
+                let centre = (lo + hi) / 2.0;
+                let half = (hi - lo) * scale / 2.0;
+                if let Some(image) = crop(base, centre - half, centre + half) {
+                    out.push((format!("candidate_{}_{name}", k + 1), image));
+                }
+            }
+        }
+    }
+    out.truncate(max_images);
+    out
+}
+
+/// One render of the whole map (`gaussians`, by id) at `view` with an owner channel: its colour
+/// image, and per pixel 1 + the candidate in front there (0: none).
+fn map_render(
+    scene: &ReferScene,
+    answer: &Answer,
+    gaussians: &[(String, Gaussians)],
+    view: &Keyframe,
+) -> Option<(RgbImage, Vec<usize>)> {
     let mut all = Gaussians::with_dims(0, 0);
     let mut features = Vec::new();
     let candidate_of = |id: &str| {
@@ -145,16 +221,15 @@ fn images(
             features.extend((0..k_count).map(|k| if owner == Some(k) { 1.0 } else { 0.0 }));
         }
     }
-    let Ok(r) = render(
+    let r = render(
         &all,
         &features,
         channels,
         &view.camera,
         &view.world_from_camera.inverse(),
         &RasterSettings::default(),
-    ) else {
-        return Vec::new();
-    };
+    )
+    .ok()?;
     let (w, h) = (r.width, r.height);
     let pixels = w * h;
     let mut base = vec![0u8; pixels * 3];
@@ -176,59 +251,7 @@ fn images(
         height: h as u32,
         data: base,
     };
-    // The overview is the camera's newest picture where one was kept, the render otherwise.
-    let overview = match scene.observations.newest() {
-        Some(picture) => outlined(scene, answer, &picture.image, &picture.keyframe),
-        None => outlined(scene, answer, &base, &view),
-    };
-    let mut out = vec![("overview".to_owned(), overview)];
-    let observed = |k: usize| {
-        let id = &scene.nodes[answer.candidates[k].index].id;
-        scene.observations.of(id).first().cloned()
-    };
-    for k in 0..answer.candidates.len() {
-        if out.len() >= max_images {
-            break;
-        }
-        // Where the camera's own picture of it was kept, that is what the reasoner sees;
-        // otherwise its visible pixels in the render.
-        let colour = PALETTE[k % PALETTE.len()];
-        let image = match observed(k) {
-            Some(o) => highlighted(&o.image, &o.mask, colour),
-            None => {
-                let mask: Vec<bool> = owner.iter().map(|o| *o == k + 1).collect();
-                highlighted(&base, &mask, colour)
-            }
-        };
-        out.push((format!("candidate_{}", k + 1), image));
-    }
-    // Then per candidate an object-centred crop and its local context (three times the box).
-    for (scale, name) in [(1.2, "crop"), (3.0, "context")] {
-        for (k, c) in answer.candidates.iter().enumerate() {
-            if out.len() >= max_images {
-                break;
-            }
-            if let Some(o) = observed(k) {
-                let image = match name {
-                    "crop" => mask_crop(&o.image, &o.mask, scale),
-                    _ => Some(o.image.clone()),
-                };
-                if let Some(image) = image {
-                    out.push((format!("candidate_{}_{name}", k + 1), image));
-                }
-                continue;
-            }
-            if let Some((lo, hi)) = projected_box(&scene.nodes[c.index], &view) {
-                let centre = (lo + hi) / 2.0;
-                let half = (hi - lo) * scale / 2.0;
-                if let Some(image) = crop(&base, centre - half, centre + half) {
-                    out.push((format!("candidate_{}_{name}", k + 1), image));
-                }
-            }
-        }
-    }
-    out.truncate(max_images);
-    out
+    Some((base, owner))
 }
 
 /// `image` (seen from `view`) with the candidates' boxes outlined and numbered, the reasoner's
