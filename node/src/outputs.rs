@@ -255,14 +255,7 @@ impl ListedLabels {
         let chosen: Vec<usize> = (0..label_of_map.len())
             .filter(|&m| label_of_map[m] > 0)
             .collect();
-        let all: Vec<&Gaussians> = scene.map.instances.iter().map(|i| &i.gaussians).collect();
-        // Built only when some keyframe has measured depth to cut by.
-        let volume = scene
-            .measured
-            .iter()
-            .any(Option::is_some)
-            .then(|| crate::refer::masks::AnswerVolume::new(&all, &chosen))
-            .flatten();
+        let volume = crate::refer::masks::measured_volume(scene, &chosen);
         Self {
             labels: chosen.iter().map(|&m| label_of_map[m]).collect(),
             label_of_map,

@@ -313,14 +313,23 @@ pub fn label_image(instances: &[&Gaussians], keyframe: &Keyframe, scene_depth: &
         .collect()
 }
 
-/// The map's points around the instances `ids` of `scene`'s map, for masks cut by measured depth.
+/// The map's points around the instances `ids` of `scene`'s map ([`measured_volume`]).
 pub(super) fn answer_volume(scene: &ReferScene, ids: &[String]) -> Option<AnswerVolume> {
-    let instances: Vec<&Gaussians> = scene.map.instances.iter().map(|i| &i.gaussians).collect();
     let chosen: Vec<usize> = ids
         .iter()
         .filter_map(|id| scene.map.instances.iter().position(|i| &i.id == id))
         .collect();
-    AnswerVolume::new(&instances, &chosen)
+    measured_volume(scene, &chosen)
+}
+
+/// The map's points around `scene`'s instances `chosen` (indices into its map), for masks cut by
+/// measured depth; `None` when no keyframe of the snapshot kept its depth (nothing to cut by).
+pub(crate) fn measured_volume(scene: &ReferScene, chosen: &[usize]) -> Option<AnswerVolume> {
+    if !scene.measured.iter().any(Option::is_some) {
+        return None;
+    }
+    let instances: Vec<&Gaussians> = scene.map.instances.iter().map(|i| &i.gaussians).collect();
+    AnswerVolume::new(&instances, chosen)
 }
 
 /// The answer's labels in the snapshot's `k`-th keyframe: at the sensor's resolution, cut by its

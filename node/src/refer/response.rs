@@ -144,13 +144,7 @@ pub fn response(
         .zip(gaussians)
         .map(|(n, g)| (numeric_id(&n.id), g))
         .collect();
-    // Only a keyframe with measured depth reads the map's points around the answer.
-    let volume = scene
-        .measured
-        .iter()
-        .any(Option::is_some)
-        .then(|| answer_volume(scene, &ids))
-        .flatten();
+    let volume = answer_volume(scene, &ids);
     let mut view_masks: Vec<InstanceMasks> = scene
         .keyframes
         .iter()
