@@ -221,10 +221,9 @@ pub fn eval_refer(
             objects: &run.objects,
             views: &views,
         };
-        if let Some(iou) = published_mask_iou(run.map.clone(), &referrer, &run.objects, &views) {
-            published.push(iou);
-        }
-        let mut asked_records = ask_scene(&file.name, run.map, &referrer, truth, &asked);
+        let shared = referrer.shared(run.map);
+        published.extend(published_mask_iou(&shared, &run.objects, &views));
+        let mut asked_records = ask_scene(&file.name, shared, truth, &asked);
         if let Some(lines) = &given {
             // A user's expression without a relation, or with a label of their own, is scored in
             // a group of its own.

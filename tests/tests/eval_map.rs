@@ -120,7 +120,7 @@ fn the_demo_scene_s_map_finds_its_objects_and_answers_its_referring_expressions(
         objects: &run.objects,
         views: &views,
     };
-    let records = ask_scene(&scene.name, map, &referrer, truth, &expressions);
+    let records = ask_scene(&scene.name, referrer.shared(map), truth, &expressions);
     assert_eq!(records.len(), expressions.len());
     for r in &records {
         println!(

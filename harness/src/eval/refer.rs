@@ -128,13 +128,8 @@ pub fn referring_iou(
             measured,
             &view.scene_depth,
         );
-        let (mut inter, mut union) = (0usize, 0usize);
-        for (p, t) in predicted.iter().zip(&truth) {
-            let p = *p > 0;
-            inter += usize::from(p && *t);
-            union += usize::from(p || *t);
-        }
-        ious.push(inter as f64 / union.max(1) as f64);
+        let pairs = predicted.iter().zip(&truth).map(|(p, t)| (*p > 0, *t));
+        ious.push(mask_iou(pairs).unwrap_or(0.0));
     }
     (!ious.is_empty()).then(|| ious.iter().sum::<f64>() / ious.len() as f64)
 }
@@ -273,17 +268,20 @@ fn is_refusal(response: &ReferResponse) -> bool {
 }
 
 /// Ask every expression of a scene on its final `map` and score the answers, each by its truth.
-/// The node's shared state holding `map`, as the referrer configures it (its object list made).
-fn shared_for(map: SceneMap, referrer: &Referrer) -> Shared {
-    let mut shared = Shared {
-        vocabulary: referrer.vocabulary.clone(),
-        text_encoder: referrer.encoder.clone(),
-        refer: referrer.section.clone(),
-        world_frame: "map".into(),
-        ..Shared::default()
-    };
-    shared.set_map(map);
-    shared
+impl Referrer {
+    /// The node's shared state holding `map`, configured as this referrer (its object list made
+    /// once, for the questions and the published masks alike).
+    pub fn shared(&self, map: SceneMap) -> Shared {
+        let mut shared = Shared {
+            vocabulary: self.vocabulary.clone(),
+            text_encoder: self.encoder.clone(),
+            refer: self.section.clone(),
+            world_frame: "map".into(),
+            ..Shared::default()
+        };
+        shared.set_map(map);
+        shared
+    }
 }
 
 /// Mean IoU of the published masks against the ground truth: every listed instance labelled as
@@ -292,12 +290,10 @@ fn shared_for(map: SceneMap, referrer: &Referrer) -> Shared {
 /// instance that found an object (box IoU >= 0.25) in each view where it or its object shows.
 /// `None` without measured depth or a found object.
 pub fn published_mask_iou(
-    map: SceneMap,
-    referrer: &Referrer,
+    shared: &Shared,
     objects: &[TruthObject],
     views: &[HeldOutView],
 ) -> Option<f64> {
-    let shared = shared_for(map, referrer);
     let index: std::collections::HashMap<&str, usize> = shared
         .map
         .instances
@@ -324,32 +320,36 @@ pub fn published_mask_iou(
         let labels = measured_labels(&volume, &view.keyframe, depth, view.noise_at_1m);
         for (k, &(_, object)) in found.iter().enumerate() {
             let label = Some((k + 1) as u16);
-            let (mut inter, mut union) = (0usize, 0usize);
-            for (l, t) in labels.iter().zip(&view.truth) {
-                let (p, t) = (*l == label, *t == object);
-                inter += usize::from(p && t);
-                union += usize::from(p || t);
-            }
-            if union > 0 {
-                ious.push(inter as f64 / union as f64);
-            }
+            let pairs = labels.iter().zip(&view.truth);
+            ious.extend(mask_iou(pairs.map(|(l, t)| (*l == label, *t == object))));
         }
     }
     (!ious.is_empty()).then(|| ious.iter().sum::<f64>() / ious.len() as f64)
 }
 
+/// IoU of a predicted and a true mask given pixel by pixel as (predicted, true); `None` when
+/// neither holds a pixel.
+fn mask_iou(pixels: impl Iterator<Item = (bool, bool)>) -> Option<f64> {
+    let (mut inter, mut union) = (0usize, 0usize);
+    for (p, t) in pixels {
+        inter += usize::from(p && t);
+        union += usize::from(p || t);
+    }
+    (union > 0).then(|| inter as f64 / union as f64)
+}
+
 /// A listed instance found an object at this box IoU (`eval map`'s recall@0.25).
 const FOUND_IOU: f64 = 0.25;
 
+/// Ask `shared`'s map ([`Referrer::shared`]) every expression through the `Refer` handler and
+/// score the answers against `truth`.
 pub fn ask_scene(
     scene: &str,
-    map: SceneMap,
-    referrer: &Referrer,
+    shared: Shared,
     truth: SceneTruth<'_>,
     expressions: &[(Expression, Truth)],
 ) -> Vec<ReferRecord> {
     let SceneTruth { objects, views } = truth;
-    let shared = shared_for(map, referrer);
     // The map's instances as objects: which targets the map holds at all.
     let in_map: Vec<u16> = shared
         .instances
@@ -479,7 +479,8 @@ mod tests {
         };
         // The objects are where the map lists its instances (boxes are the map's business and
         // `eval map`'s; the masks are scored here): 7 on the left, 9 on the right.
-        let objects: Vec<TruthObject> = shared_for(map.clone(), &referrer)
+        let shared = referrer.shared(map);
+        let objects: Vec<TruthObject> = shared
             .instances
             .iter()
             .map(|i| {
@@ -520,14 +521,14 @@ mod tests {
             noise_at_1m: None,
             scene_depth: Vec::new(),
         };
-        let right = published_mask_iou(map.clone(), &referrer, &objects, &[view(truth_of(7, 9))]);
+        let right = published_mask_iou(&shared, &objects, &[view(truth_of(7, 9))]);
         assert!(right.is_some_and(|iou| iou > 0.8), "{right:?}");
-        let swapped = published_mask_iou(map.clone(), &referrer, &objects, &[view(truth_of(9, 7))]);
+        let swapped = published_mask_iou(&shared, &objects, &[view(truth_of(9, 7))]);
         assert!(swapped.is_some_and(|iou| iou < 0.05), "{swapped:?}");
         // Without measured depth there is nothing to score.
         let mut blind = view(truth_of(7, 9));
         blind.measured_depth = None;
-        assert_eq!(published_mask_iou(map, &referrer, &objects, &[blind]), None);
+        assert_eq!(published_mask_iou(&shared, &objects, &[blind]), None);
     }
 
     #[test]
