@@ -67,6 +67,11 @@ pub enum SimCommand {
         /// consumer depth camera with 1-30% dropout).
         #[arg(long)]
         effects: Option<String>,
+        /// Render at this sensor resolution (e.g. `320x240`, the benchmark camera's) and resample
+        /// to `--width × --height` as the node resamples camera images, so sensor effects act at
+        /// the scale the node meets them.
+        #[arg(long, value_parser = parse_resolution)]
+        sensor: Option<(u32, u32)>,
         #[arg(long)]
         out: PathBuf,
     },
@@ -182,6 +187,7 @@ pub fn run(command: SimCommand) -> Result<()> {
             width,
             height,
             effects,
+            sensor,
             out,
         } => {
             let effects = effects
@@ -197,6 +203,7 @@ pub fn run(command: SimCommand) -> Result<()> {
                 views,
                 width,
                 height,
+                sensor,
                 ..Default::default()
             };
             let bar = progress_bar(samples as u64, "dataset");
@@ -340,4 +347,12 @@ fn preview(rgb: &image::RgbImage, depth: &[f32], instance: &[u16]) -> Result<ima
         }
     }
     Ok(out)
+}
+
+/// `WIDTHxHEIGHT`, both positive.
+fn parse_resolution(text: &str) -> Result<(u32, u32), String> {
+    let bad = || format!("expected WIDTHxHEIGHT (e.g. 320x240), got {text:?}");
+    let (w, h) = text.split_once(['x', 'X']).ok_or_else(bad)?;
+    let parse = |s: &str| s.trim().parse::<u32>().ok().filter(|v| *v > 0);
+    Ok((parse(w).ok_or_else(bad)?, parse(h).ok_or_else(bad)?))
 }

@@ -56,6 +56,10 @@ pub struct DatasetOptions {
     /// Effects drawn per sample from this preset ([`Preset::sample_effects`]); `None` renders
     /// clean.
     pub effects: Option<Preset>,
+    /// Render at this sensor resolution and resample to `width × height` as the node does
+    /// ([`crate::resample`]), so effects act at the scale the node meets them; `None` renders
+    /// at `width × height`.
+    pub sensor: Option<(u32, u32)>,
 }
 
 impl Default for DatasetOptions {
@@ -70,6 +74,7 @@ impl Default for DatasetOptions {
             height: 96,
             fov_x_deg: 90.0,
             effects: None,
+            sensor: None,
         }
     }
 }
@@ -96,6 +101,9 @@ struct DatasetManifest<'a> {
     depth_scale: f64,
     /// The effects preset samples were drawn from (`clean` when none).
     effects: String,
+    /// The resolution views were rendered at before resampling (`null`: rendered at `width ×
+    /// height`).
+    sensor: Option<[u32; 2]>,
     classes: Vec<ClassEntry>,
     scenes: &'a [String],
     /// Share of pixels showing an object (not the room), over all views.
@@ -265,9 +273,10 @@ fn write_sample(
     index: u64,
 ) -> Result<(String, u64, usize, usize)> {
     let window = (options.views - 1) * options.frames_between_views + 1;
+    let (render_width, render_height) = options.sensor.unwrap_or((options.width, options.height));
     let procedural = ProceduralOptions {
-        width: options.width,
-        height: options.height,
+        width: render_width,
+        height: render_height,
         fov_x_deg: options.fov_x_deg,
         frames: window + CANDIDATE_STARTS * options.frames_between_views,
         rate_hz: 10.0,
@@ -289,7 +298,13 @@ fn write_sample(
     for v in 0..options.views {
         let frame_index = start + v * options.frames_between_views;
         let frame = sim.frame(frame_index);
-        let view = &frame.views[0];
+        let resampled;
+        let view = if options.sensor.is_some() {
+            resampled = crate::resample::view_at(&frame.views[0], options.width, options.height);
+            &resampled
+        } else {
+            &frame.views[0]
+        };
         object_pixels += view.truth.instance.iter().filter(|i| **i != 0).count();
         pixels += view.truth.instance.len();
         let (entry, written) = write_view(&dir, v, frame_index, view)?;
@@ -371,6 +386,7 @@ pub fn write_dataset(
         effects: options
             .effects
             .map_or_else(|| "clean".to_owned(), |p| p.name()),
+        sensor: options.sensor.map(|(w, h)| [w, h]),
         classes: library::classes()
             .into_iter()
             .map(|c| ClassEntry {

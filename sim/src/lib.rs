@@ -17,6 +17,7 @@ pub mod procedural;
 pub mod record;
 pub mod referring;
 pub mod render;
+pub mod resample;
 pub mod scene;
 pub mod simulation;
 pub mod testcard;

@@ -622,6 +622,77 @@ mod tests {
     use glam::DQuat;
 
     #[test]
+    fn dataset_resampling_matches_the_node() {
+        // `sim dataset --sensor` resamples sensor views for training; it must feed the model what
+        // this module feeds it from the same camera image.
+        let (w, h) = (37usize, 23usize);
+        let data: Vec<u8> = (0..w * h * 3)
+            .map(|i| ((i * 97 + i / 7) % 256) as u8)
+            .collect();
+        let metres: Vec<f32> = (0..w * h)
+            .map(|i| {
+                if i % 11 == 0 {
+                    f32::NAN
+                } else {
+                    0.5 + i as f32 * 1e-3
+                }
+            })
+            .collect();
+        let (mw, mh) = (16usize, 9usize);
+        let node_rgb = resize_rgb_planar(
+            &RgbImage {
+                width: w as u32,
+                height: h as u32,
+                data: data.clone(),
+            },
+            mw,
+            mh,
+        );
+        let sim_rgb = groupforward_sim::resample::bilinear_rgb(&data, (w, h), (mw, mh));
+        for (i, byte) in sim_rgb.iter().enumerate() {
+            let (pixel, c) = (i / 3, i % 3);
+            let node = node_rgb[c * mw * mh + pixel] * 255.0;
+            assert!(
+                (node - f32::from(*byte)).abs() <= 0.5 + 1e-3,
+                "pixel {pixel} channel {c}"
+            );
+        }
+        let depth = DepthImage {
+            width: w as u32,
+            height: h as u32,
+            metres: metres.clone(),
+        };
+        let node_depth = resize_depth(&depth, mw, mh);
+        let sim_depth = groupforward_sim::resample::nearest(&metres, (w, h), (mw, mh));
+        assert_eq!(node_depth.len(), sim_depth.len());
+        for (a, b) in node_depth.iter().zip(&sim_depth) {
+            assert!(a.to_bits() == b.to_bits());
+        }
+        let camera = Camera::pinhole(w as u32, h as u32, 30.0, 31.0, 18.2, 11.7).unwrap();
+        let node_camera = resized_camera(&camera, mw, mh);
+        let sim_camera = groupforward_sim::resample::resized_pinhole(
+            &groupforward_sim::render::Pinhole {
+                width: w as u32,
+                height: h as u32,
+                fx: 30.0,
+                fy: 31.0,
+                cx: 18.2,
+                cy: 11.7,
+            },
+            mw as u32,
+            mh as u32,
+        );
+        for (a, b) in [
+            (node_camera.fx, sim_camera.fx),
+            (node_camera.fy, sim_camera.fy),
+            (node_camera.cx, sim_camera.cx),
+            (node_camera.cy, sim_camera.cy),
+        ] {
+            assert!((a - b).abs() < 1e-12);
+        }
+    }
+
+    #[test]
     fn posed_cameras_put_each_pixel_where_the_points_do() {
         // Two views at 320×240 for a 128×96 model, turned and apart; what the posed model is given
         // (intrinsics, pose) must place a pixel at depth d exactly where the RGB-D points put it.
