@@ -841,6 +841,7 @@ mod tests {
                 index: right,
                 confidence: 1.0,
             }],
+            note: None,
             candidates: Vec::new(),
             reasoner_used: "builtin".into(),
             trace: String::new(),

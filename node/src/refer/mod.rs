@@ -114,6 +114,8 @@ pub struct CandidateReport {
 pub struct Answer {
     pub query: Query,
     pub chosen: Vec<reasoner::Choice>,
+    /// What the asker should know about the answer (the reasoner's [`reasoner::Decision::note`]).
+    pub note: Option<String>,
     pub candidates: Vec<CandidateReport>,
     pub reasoner_used: String,
     pub trace: String,
@@ -269,8 +271,8 @@ pub fn answer_query(
         .map(|(p, w)| format!("{:?} reads as {p:?} ({w:.2}); ", query.target))
         .unwrap_or_default();
     let mut trace = anchor_trace + &nearest + &decision.trace;
-    if let Some(shortfall) = &decision.shortfall {
-        trace += &format!("; {shortfall}");
+    if let Some(note) = &decision.note {
+        trace += &format!("; {note}");
     }
     Ok(Answer {
         candidates: retrieval
@@ -290,6 +292,7 @@ pub fn answer_query(
             })
             .collect(),
         chosen: decision.chosen,
+        note: decision.note,
         reasoner_used: "builtin".into(),
         trace,
         view: query.view_dependent().then_some(view).flatten(),
@@ -319,6 +322,8 @@ pub fn with_vlm(
                 })
                 .collect();
             answer.reasoner_used = "vlm".into();
+            // The note was about the built-in reasoner's choice.
+            answer.note = None;
             answer.trace = format!("VLM: {}; built-in: {}", choice.reason, answer.trace);
         }
         Err(e) => {

@@ -29,8 +29,9 @@ pub struct Decision {
     pub chosen: Vec<Choice>,
     /// Why, in words (candidate keys and the rule applied).
     pub trace: String,
-    /// Set when fewer instances than asked for fit ("both chairs" with one chair in the map).
-    pub shortfall: Option<String>,
+    /// What the asker should know about the answer: fewer instances fit than were asked for
+    /// ("both chairs" with one chair in the map), or a relation that could not be checked.
+    pub note: Option<String>,
 }
 
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
@@ -92,9 +93,8 @@ pub fn reason(
         let anchors = &retrieval.anchors;
         let first = anchors.first().filter(|l| !l.is_empty());
         let Some(first) = first else {
-            return Err(ReasonError::NoAnchor(
-                query.anchors.first().cloned().unwrap_or_default(),
-            ));
+            let missing = query.anchors.first().cloned().unwrap_or_default();
+            return only_fit(scene, query, &fit, missing);
         };
         for c in &fit {
             let t = &geometries[c.index];
@@ -105,7 +105,9 @@ pub fn reason(
                         Some((a, b)) => {
                             relation_margin(relation, t, &geometries[a], Some(&geometries[b]), view)
                         }
-                        None => return Err(ReasonError::NoAnchor(query.anchors.join(" and "))),
+                        None => {
+                            return only_fit(scene, query, &fit, unseen_anchors(query, anchors))
+                        }
                     }
                 }
                 // Support relations hold with any instance of the anchor concept.
@@ -159,17 +161,7 @@ pub fn reason(
     // Two instances whose boxes overlap this much are one object seen twice (a duplicate in the
     // map): when several are asked for, they are different objects.
     if query.count != Count::One {
-        let mut distinct: Vec<(Scored, f64, bool)> = Vec::new();
-        for k in keyed {
-            let b = &scene.nodes[k.0.index].bbox;
-            if !distinct
-                .iter()
-                .any(|d| scene.nodes[d.0.index].bbox.iou(b) >= DUPLICATE_IOU)
-            {
-                distinct.push(k);
-            }
-        }
-        keyed = distinct;
+        keyed = distinct(scene, keyed, |k| k.0.index);
     }
     let wanted = match query.count {
         Count::One => 1,
@@ -190,7 +182,7 @@ pub fn reason(
     } else {
         wanted
     };
-    let shortfall = (keyed.len() < wanted).then(|| {
+    let note = (keyed.len() < wanted).then(|| {
         format!(
             "asked for {wanted}, {} instance(s) fit {:?}",
             keyed.len(),
@@ -217,7 +209,81 @@ pub fn reason(
     Ok(Decision {
         chosen,
         trace,
-        shortfall,
+        note,
+    })
+}
+
+/// The anchors of "between" that no instance stands for, as a refusal names them ("lamp",
+/// "chair and lamp"); when each has one but they are the same instance, the pair ("between the
+/// two desks" with one desk seen) or the second apart from the first.
+fn unseen_anchors(query: &Query, anchors: &[super::retrieve::AnchorList]) -> String {
+    let missing: Vec<&str> = query
+        .anchors
+        .iter()
+        .enumerate()
+        .filter(|(i, _)| anchors.get(*i).is_none_or(|l| l.is_empty()))
+        .map(|(_, a)| a.as_str())
+        .collect();
+    if missing.is_empty() {
+        match query.anchors.as_slice() {
+            [a, b] if a != b => format!("{b} apart from the {a}"),
+            _ => format!(
+                "pair of {}",
+                query.anchors.last().map_or("", String::as_str)
+            ),
+        }
+    } else {
+        missing.join(" and ")
+    }
+}
+
+/// `items` with each object once, in order: an item whose instance's box overlaps an earlier
+/// one's by [`DUPLICATE_IOU`] is that object seen twice (a duplicate in the map).
+fn distinct<T>(scene: &ReferScene, items: Vec<T>, index: impl Fn(&T) -> usize) -> Vec<T> {
+    let mut kept: Vec<T> = Vec::new();
+    for item in items {
+        let b = &scene.nodes[index(&item)].bbox;
+        if !kept
+            .iter()
+            .any(|k| scene.nodes[index(k)].bbox.iou(b) >= DUPLICATE_IOU)
+        {
+            kept.push(item);
+        }
+    }
+    kept
+}
+
+/// An anchor the map lacks leaves the relation unchecked; when one object alone fits the target
+/// ("the desk closest to the lamp" with one desk seen and no lamp), that object is the answer
+/// whatever the relation says, as it would be with the anchor seen, and the answer says the
+/// relation went unchecked. Otherwise the relation would have to choose: refused.
+fn only_fit(
+    scene: &ReferScene,
+    query: &Query,
+    fit: &[Scored],
+    missing: String,
+) -> Result<Decision, ReasonError> {
+    let objects = distinct(scene, fit.to_vec(), |c| c.index);
+    let [only] = objects.as_slice() else {
+        return Err(ReasonError::NoAnchor(missing));
+    };
+    if query.count != Count::One {
+        return Err(ReasonError::NoAnchor(missing));
+    }
+    Ok(Decision {
+        chosen: vec![Choice {
+            index: only.index,
+            // Half: the description was only half checked.
+            confidence: (0.5 * only.score.max(only.semantic)).clamp(0.0, 1.0),
+        }],
+        trace: format!(
+            "the only {:?} seen ({}); no {missing} has been seen to relate to",
+            query.target, scene.nodes[only.index].id
+        ),
+        note: Some(format!(
+            "no {missing} has been seen, so the relation was not checked: the only {} seen",
+            query.target
+        )),
     })
 }
 

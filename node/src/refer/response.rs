@@ -174,7 +174,11 @@ pub fn response(
     let message = if answer.chosen.is_empty() {
         "no instance fits".to_owned()
     } else {
-        format!("{} instance(s)", answer.chosen.len())
+        let count = format!("{} instance(s)", answer.chosen.len());
+        match &answer.note {
+            Some(note) => format!("{count}; {note}"),
+            None => count,
+        }
     };
     ReferResponse {
         success: !answer.chosen.is_empty(),

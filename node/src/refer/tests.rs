@@ -305,6 +305,43 @@ fn an_anchor_the_map_does_not_hold_is_refused_not_stood_in_for() {
 }
 
 #[test]
+fn the_only_object_that_fits_is_answered_when_its_anchor_was_not_seen_and_says_so() {
+    let mut scene = room();
+    scene.nodes.retain(|n| n.label != "lamp");
+    // One cabinet: whatever "closest to the lamp" would say, it is the one.
+    let got = ask(&scene, "the cabinet closest to the lamp").unwrap();
+    assert_eq!(ids(&got, &scene), ["inst_000009"], "{}", got.trace);
+    let note = got.note.clone().unwrap_or_default();
+    assert!(note.contains("no lamp has been seen"), "{note}");
+    assert!(got.chosen[0].confidence <= 0.5);
+    // A duplicate of it in the map is still one object.
+    scene.nodes.push(node(
+        10,
+        "cabinet",
+        [-3.0, -3.0, 0.0],
+        [-2.4, -2.4, 1.7],
+        BROWN,
+    ));
+    let got = ask(&scene, "the cabinet closest to the lamp").unwrap();
+    assert_eq!(got.chosen.len(), 1, "{}", got.trace);
+    // Two cabinets apart: the relation would have to choose.
+    scene
+        .nodes
+        .push(node(11, "cabinet", [3.0, 3.0, 0.0], [3.6, 3.6, 1.8], BROWN));
+    let got = ask(&scene, "the cabinet closest to the lamp");
+    assert!(
+        matches!(got, Err(ReferError::Reason(ReasonError::NoAnchor(ref a))) if a == "lamp"),
+        "{got:?}"
+    );
+    // "Between" names only the anchor it lacks.
+    let got = ask(&scene, "the cabinet between the lamp and the chair");
+    assert!(
+        matches!(got, Err(ReferError::Reason(ReasonError::NoAnchor(ref a))) if a == "lamp"),
+        "{got:?}"
+    );
+}
+
+#[test]
 fn a_target_the_map_does_not_hold_is_refused_saying_what_was_not_seen() {
     let mut scene = room();
     scene.nodes.retain(|n| n.label != "lamp");
