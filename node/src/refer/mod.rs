@@ -237,11 +237,20 @@ pub fn answer_query(
         ))
     };
     let view = request.view.or_else(|| latest_view(scene));
+    // A two-hop anchor phrase that finds nothing leaves the relation unchecked (`unresolved`).
+    let mut unresolved = None;
     let (anchor_lists, anchor_trace) = match &query.anchor_query {
-        Some(anchor) => {
-            let (list, trace) = answer_anchor(scene, embed, anchor, request, section)?;
-            (vec![list], trace)
-        }
+        Some(anchor) => match answer_anchor(scene, embed, anchor, request, section) {
+            Ok((list, trace)) => (vec![list], trace),
+            Err(ReferError::Reason(
+                refusal @ (ReasonError::NoAnchor(_) | ReasonError::NoTarget(_)),
+            )) => {
+                let trace = format!("anchor {:?} found nothing: {refusal}; ", anchor.text);
+                unresolved = Some(refusal);
+                (Vec::new(), trace)
+            }
+            Err(e) => return Err(e),
+        },
         None => {
             let anchors = query
                 .anchors
@@ -259,13 +268,16 @@ pub fn answer_query(
         view.as_ref(),
         section.top_k,
     );
-    let decision = reasoner::reason(
-        scene,
-        &query,
-        &retrieval,
-        view.as_ref(),
-        request.max_targets,
-    )?;
+    let decision = match unresolved {
+        Some(refusal) => reasoner::without_anchor(scene, &query, &retrieval, refusal)?,
+        None => reasoner::reason(
+            scene,
+            &query,
+            &retrieval,
+            view.as_ref(),
+            request.max_targets,
+        )?,
+    };
     let nearest = target
         .nearest_phrase(scene)
         .map(|(p, w)| format!("{:?} reads as {p:?} ({w:.2}); ", query.target))

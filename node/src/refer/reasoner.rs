@@ -94,7 +94,7 @@ pub fn reason(
         let first = anchors.first().filter(|l| !l.is_empty());
         let Some(first) = first else {
             let missing = query.anchors.first().cloned().unwrap_or_default();
-            return only_fit(scene, query, &fit, missing);
+            return only_fit(scene, query, &fit, ReasonError::NoAnchor(missing));
         };
         for c in &fit {
             let t = &geometries[c.index];
@@ -106,7 +106,8 @@ pub fn reason(
                             relation_margin(relation, t, &geometries[a], Some(&geometries[b]), view)
                         }
                         None => {
-                            return only_fit(scene, query, &fit, unseen_anchors(query, anchors))
+                            let missing = unseen_anchors(query, anchors);
+                            return only_fit(scene, query, &fit, ReasonError::NoAnchor(missing));
                         }
                     }
                 }
@@ -256,19 +257,19 @@ fn distinct<T>(scene: &ReferScene, items: Vec<T>, index: impl Fn(&T) -> usize) -
 /// An anchor the map lacks leaves the relation unchecked; when one object alone fits the target
 /// ("the desk closest to the lamp" with one desk seen and no lamp), that object is the answer
 /// whatever the relation says, as it would be with the anchor seen, and the answer says the
-/// relation went unchecked. Otherwise the relation would have to choose: refused.
+/// relation went unchecked. Otherwise the relation would have to choose: `refusal`.
 fn only_fit(
     scene: &ReferScene,
     query: &Query,
     fit: &[Scored],
-    missing: String,
+    refusal: ReasonError,
 ) -> Result<Decision, ReasonError> {
     let objects = distinct(scene, fit.to_vec(), |c| c.index);
     let [only] = objects.as_slice() else {
-        return Err(ReasonError::NoAnchor(missing));
+        return Err(refusal);
     };
     if query.count != Count::One {
-        return Err(ReasonError::NoAnchor(missing));
+        return Err(refusal);
     }
     Ok(Decision {
         chosen: vec![Choice {
@@ -277,14 +278,29 @@ fn only_fit(
             confidence: (0.5 * only.score.max(only.semantic)).clamp(0.0, 1.0),
         }],
         trace: format!(
-            "the only {:?} seen ({}); no {missing} has been seen to relate to",
+            "the only {:?} seen ({}); {refusal}",
             query.target, scene.nodes[only.index].id
         ),
         note: Some(format!(
-            "no {missing} has been seen, so the relation was not checked: the only {} seen",
+            "{refusal}, so the relation was not checked: the only {} seen",
             query.target
         )),
     })
+}
+
+/// A query whose two-hop anchor phrase found nothing (`refusal`, the inner answer's): the target
+/// alone decides when one object fits it ([`only_fit`]), else the inner refusal stands.
+pub fn without_anchor(
+    scene: &ReferScene,
+    query: &Query,
+    retrieval: &Retrieval,
+    refusal: ReasonError,
+) -> Result<Decision, ReasonError> {
+    let fit = fitting(&retrieval.candidates);
+    if fit.is_empty() {
+        return Err(ReasonError::NoTarget(unseen(query)));
+    }
+    only_fit(scene, query, &fit, refusal)
 }
 
 /// The two anchors of "between" for candidate `t`: the best of each anchor concept, or the two

@@ -314,6 +314,17 @@ fn the_only_object_that_fits_is_answered_when_its_anchor_was_not_seen_and_says_s
     let note = got.note.clone().unwrap_or_default();
     assert!(note.contains("no lamp has been seen"), "{note}");
     assert!(got.chosen[0].confidence <= 0.5);
+    // So when a two-hop anchor phrase finds nothing (three chairs, no lamp to pick one by).
+    let got = ask(
+        &scene,
+        "the cabinet closest to the chair farthest from the lamp",
+    )
+    .unwrap();
+    assert_eq!(ids(&got, &scene), ["inst_000009"], "{}", got.trace);
+    assert!(got
+        .note
+        .unwrap_or_default()
+        .contains("no lamp has been seen"));
     // A duplicate of it in the map is still one object.
     scene.nodes.push(node(
         10,
