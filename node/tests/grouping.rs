@@ -633,3 +633,21 @@ fn grouping_joins_one_instance_split_into_two_modes() {
         ));
     }
 }
+
+#[test]
+fn nothing_the_vocabulary_names_is_longer_than_twice_its_longest_object() {
+    // chair (0.52 m at most) and table (1.38 m): nothing of these is 3 m long; a phrase
+    // without priors could be anything.
+    let v = vocabulary(0.05);
+    assert!(!v.admits_no_object(0.5));
+    assert!(
+        !v.admits_no_object(2.7),
+        "a table with a piece of what it touches"
+    );
+    assert!(v.admits_no_object(3.0));
+    assert!(!v.admits_no_object(f64::NAN));
+    assert!(!v.admits_no_object(f64::INFINITY));
+    let mut unknown = vocabulary(0.05);
+    unknown.phrases[0] = "whiteboard".into();
+    assert!(!unknown.admits_no_object(30.0));
+}

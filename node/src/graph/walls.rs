@@ -332,10 +332,16 @@ pub fn object_list<'a>(
         .iter()
         .filter(|i| vocabulary.is_none_or(|v| v.is_listed(&i.prototype, i.gaussians.len())))
         .filter_map(|i| {
-            // Named once (the instance's length is measured for it): three completions, the
-            // published hypotheses and referring read these names.
+            // Longer than any object of the vocabulary could be: no object (a room-sized
+            // instance named "sink" was listed on benchmark 9604).
+            let length = i.length_m();
+            if vocabulary.is_some_and(|v| v.admits_no_object(length)) {
+                return None;
+            }
+            // Named once: three completions, the published hypotheses and referring read these
+            // names ([`Instance::name_probabilities`], at the length just measured).
             let names = vocabulary
-                .map(|v| i.name_probabilities(v))
+                .map(|v| v.probabilities_given(&i.prototype, Some(length)))
                 .unwrap_or_default();
             let name = vocabulary
                 .and_then(|v| v.ranked(&names, 1).into_iter().next())

@@ -270,6 +270,21 @@ impl Vocabulary {
         }
     }
 
+    /// Whether nothing the vocabulary names could be `length_m` long (its longer horizontal
+    /// side): no object phrase admits the length ([`ClassPriors::admits_length`]): the room
+    /// itself, or a whole row grown into one instance. A phrase without a largest side admits
+    /// any length, so a vocabulary with one never says so.
+    pub fn admits_no_object(&self, length_m: f64) -> bool {
+        let mut objects = self
+            .phrases
+            .iter()
+            .filter(|p| *p != OTHER_PHRASE)
+            .peekable();
+        length_m.is_finite()
+            && objects.peek().is_some()
+            && objects.all(|p| !self.priors.admits_length(p, length_m))
+    }
+
     /// Whether an instance with `prototype` is structure (walls, floor, ceiling: best phrase
     /// `other`).
     pub fn is_structure(&self, prototype: &[f32]) -> bool {
