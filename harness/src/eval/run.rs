@@ -16,7 +16,7 @@ use rayon::prelude::*;
 use super::score::{ListedInstance, TruthObject, WindowRecord, UNASSIGNED_REASONS};
 use groupforward::config::Config;
 use groupforward::frame::SyncedFrame;
-use groupforward::graph::walls::object_list;
+use groupforward::graph::listing::object_list;
 use groupforward::graph::{GraphError, SceneMap};
 use groupforward::ingest::{DepthValidity, Ingest};
 use groupforward::node::Node;

@@ -13,6 +13,7 @@ pub mod amodal;
 pub mod error;
 pub mod fusion;
 pub mod instance;
+pub mod listing;
 pub mod persist;
 pub mod scene_graph;
 pub mod walls;

@@ -12,7 +12,7 @@
 //! their mean surface; edges and thin parts (a pole, a leg: no plane) stay as they are. Only the
 //! points a box is fitted to are thinned: the map keeps what the camera measured.
 //!
-//! Where it is used ([`crate::graph::walls::object_list`]): only a face completion of box-like
+//! Where it is used ([`crate::graph::listing::object_list`]): only a face completion of box-like
 //! furniture is taken from the thinned points. Fitting every box to them was measured and not
 //! kept (`eval map --effects realistic`, benchmark 0-9, paired): mean IoU +0.026 (beyond the
 //! spread; cabinets, chairs and bins fitted tighter) but recall@0.25 -1.3, @0.5 +0.0, precision

@@ -10,7 +10,7 @@ use std::sync::Arc;
 use glam::DVec3;
 
 use crate::frame::{Keyframe, MeasuredDepth};
-use crate::graph::walls::object_list;
+use crate::graph::listing::object_list;
 use crate::graph::{GraphError, SceneGraph, SceneMap};
 use crate::group::semantics::Vocabulary;
 use crate::observations::Observations;

@@ -10,7 +10,7 @@ use groupforward_msgs::gf_msgs::{Instance, NodeStatus};
 use groupforward_msgs::vision_msgs::ObjectHypothesis;
 
 use crate::frame::MeasuredDepth;
-use crate::graph::walls::object_list;
+use crate::graph::listing::object_list;
 use crate::graph::{Fitted, SceneMap};
 use crate::group::semantics::Vocabulary;
 use crate::model::text::TextEncoder;
