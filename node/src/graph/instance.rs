@@ -72,9 +72,10 @@ impl Instance {
     }
 
     /// p(name) for every phrase of `vocabulary`, in its order: its prototype's, less the names
-    /// whose objects are never as long as it is ([`Vocabulary::probabilities_given`]).
-    pub fn name_probabilities(&self, vocabulary: &Vocabulary) -> Vec<f32> {
-        vocabulary.probabilities_given(&self.prototype, Some(self.length_m()))
+    /// whose objects are never as long as it is, `length_m` ([`Instance::length_m`], measured
+    /// once by the caller; [`Vocabulary::probabilities_given`]).
+    pub fn name_probabilities(&self, vocabulary: &Vocabulary, length_m: f64) -> Vec<f32> {
+        vocabulary.probabilities_given(&self.prototype, Some(length_m))
     }
 
     /// The box the map publishes for this instance (and the evaluation scores): fitted to its

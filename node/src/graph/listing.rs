@@ -63,9 +63,9 @@ pub fn object_list<'a>(
                 return None;
             }
             // Named once: three completions, the published hypotheses and referring read these
-            // names ([`Instance::name_probabilities`], at the length just measured).
+            // names.
             let names = vocabulary
-                .map(|v| v.probabilities_given(&i.prototype, Some(length)))
+                .map(|v| i.name_probabilities(v, length))
                 .unwrap_or_default();
             let name = vocabulary
                 .and_then(|v| v.ranked(&names, 1).into_iter().next())

@@ -238,16 +238,14 @@ pub fn answer_query(
     };
     let view = request.view.or_else(|| latest_view(scene));
     // A two-hop anchor phrase that finds nothing leaves the relation unchecked (`unresolved`).
-    let mut unresolved = None;
-    let (anchor_lists, anchor_trace) = match &query.anchor_query {
+    let (anchor_lists, anchor_trace, unresolved) = match &query.anchor_query {
         Some(anchor) => match answer_anchor(scene, embed, anchor, request, section) {
-            Ok((list, trace)) => (vec![list], trace),
+            Ok((list, trace)) => (vec![list], trace, None),
             Err(ReferError::Reason(
                 refusal @ (ReasonError::NoAnchor(_) | ReasonError::NoTarget(_)),
             )) => {
                 let trace = format!("anchor {:?} found nothing: {refusal}; ", anchor.text);
-                unresolved = Some(refusal);
-                (Vec::new(), trace)
+                (Vec::new(), trace, Some(refusal))
             }
             Err(e) => return Err(e),
         },
@@ -257,7 +255,7 @@ pub fn answer_query(
                 .iter()
                 .map(|a| concept(a))
                 .collect::<Result<Vec<_>, _>>()?;
-            (retrieve::anchor_lists(scene, &anchors), String::new())
+            (retrieve::anchor_lists(scene, &anchors), String::new(), None)
         }
     };
     let retrieval = retrieve::retrieve(

@@ -264,13 +264,13 @@ fn only_fit(
     fit: &[Scored],
     refusal: ReasonError,
 ) -> Result<Decision, ReasonError> {
+    if query.count != Count::One {
+        return Err(refusal);
+    }
     let objects = distinct(scene, fit.to_vec(), |c| c.index);
     let [only] = objects.as_slice() else {
         return Err(refusal);
     };
-    if query.count != Count::One {
-        return Err(refusal);
-    }
     Ok(Decision {
         chosen: vec![Choice {
             index: only.index,
