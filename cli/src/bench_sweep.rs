@@ -97,9 +97,8 @@ pub fn settings(quick: bool) -> Vec<Setting> {
         Setting::with("subsample_40k", |s| s.max_cluster_points = 40_000),
         Setting::with("min_cluster_15", |s| s.min_cluster_size = 15),
         Setting::with("min_cluster_60", |s| s.min_cluster_size = 60),
-        Setting::with("residual_pass", |s| {
-            s.residual = Some(groupforward::group::ResidualPass::default());
-        }),
+        // The default before the residual pass was (2026-11-29), side by side with it.
+        Setting::with("first_pass_only", |s| s.residual = None),
         Setting::with("rgb_model", |s| s.model = RGB),
         // The shipped default before its speed work (2026-11-25), side by side with it.
         Setting::with("ort_spinning", |s| s.spinning = true),

@@ -210,16 +210,23 @@ fn grouping_assigns_every_embedding_and_marks_zero_vectors_noise() {
 }
 
 fn with_the_residual_pass() -> GroupingParams {
-    GroupingParams {
-        residual: Some(ResidualPass::default()),
-        ..GroupingParams::default()
-    }
+    let params = GroupingParams::default();
+    assert_eq!(
+        params.residual,
+        Some(ResidualPass::default()),
+        "on by default"
+    );
+    params
 }
 
-/// The default grouping of 8-d `points` (no residual pass), and with the residual pass.
+/// The grouping of 8-d `points` by the first pass alone, and with the residual pass (the default).
 fn without_and_with_the_residual_pass(points: &[f32]) -> (Grouping, Grouping) {
+    let first_pass_only = GroupingParams {
+        residual: None,
+        ..GroupingParams::default()
+    };
     (
-        group(points, 8, &GroupingParams::default()).unwrap(),
+        group(points, 8, &first_pass_only).unwrap(),
         group(points, 8, &with_the_residual_pass()).unwrap(),
     )
 }
@@ -479,26 +486,39 @@ fn a_name_whose_objects_are_never_that_long_gives_way_to_the_next_object_name() 
 }
 
 #[test]
-fn the_object_list_leaves_out_structure_and_small_pieces_named_unsurely() {
-    use groupforward::group::semantics::{CONFIDENT_NAME, MIN_LISTED_GAUSSIANS};
+fn the_object_list_leaves_out_structure_and_small_pieces_named_unsurely_or_seen_once() {
+    use groupforward::group::semantics::{
+        CONFIDENT_NAME, MIN_LISTED_GAUSSIANS, MIN_SMALL_SIGHTINGS,
+    };
     let v = vocabulary(0.05);
     let sure = [1.0, 0.0, 0.0];
     let unsure = [0.5, 0.48, 0.0];
     assert!(v.hypotheses(&sure, 1)[0].1 >= CONFIDENT_NAME);
     assert!(v.hypotheses(&unsure, 1)[0].1 < CONFIDENT_NAME);
     let small = MIN_LISTED_GAUSSIANS - 1;
-    assert!(v.is_listed(&sure, small), "a small object named surely");
     assert!(
-        v.is_listed(&unsure, MIN_LISTED_GAUSSIANS),
-        "a large one named unsurely"
+        v.is_listed(&sure, small, 2),
+        "a small object named surely, seen again"
     );
-    assert!(!v.is_listed(&unsure, small), "a small piece named unsurely");
     assert!(
-        !v.is_listed(&[0.0, 0.0, 1.0], 10_000),
+        !v.is_listed(&sure, small, 1),
+        "a small object named surely, seen by one window only: tentative"
+    );
+    assert_eq!(MIN_SMALL_SIGHTINGS, 2);
+    assert!(
+        v.is_listed(&unsure, MIN_LISTED_GAUSSIANS, 1),
+        "a large one named unsurely, seen once"
+    );
+    assert!(
+        !v.is_listed(&unsure, small, 10),
+        "a small piece named unsurely"
+    );
+    assert!(
+        !v.is_listed(&[0.0, 0.0, 1.0], 10_000, 10),
         "structure, however large"
     );
     // Without semantics there are no names to judge: listed.
-    assert!(v.is_listed(&[], 1));
+    assert!(v.is_listed(&[], 1, 1));
 }
 
 #[test]

@@ -61,12 +61,13 @@ fn embeddings() -> Vec<f32> {
 #[test]
 fn the_python_grouping_in_train_gives_the_node_s_labels() {
     let points = embeddings();
-    // With the residual pass (off by default), which runs the first pass as the default does.
+    // With the residual pass, as by default.
     let residual = ResidualPass::default();
     let params = GroupingParams {
         residual: Some(residual),
         ..GroupingParams::default()
     };
+    assert_eq!(params, GroupingParams::default());
     let rust = group(&points, 8, &params).unwrap();
     let dir = tempfile::tempdir().unwrap();
     let file = dir.path().join("embeddings.f32");

@@ -9,6 +9,8 @@ MAX_CLUSTER_POINTS = 20_000
 # min_cluster_size, min_samples, noise distance, merge distance: chosen together on the 24 selection
 # windows (train/README.md), as the node's GroupingParams::default.
 GROUPING = (30, 10, 0.7, 0.4)
+# The node's default ResidualPass: min_cluster_size, min_samples, noise distance.
+RESIDUAL = (15, 5, 0.35)
 
 
 def unit_centroids(embeddings, labels, ids):
@@ -63,9 +65,10 @@ def cluster_and_assign(embeddings, members, density, noise_distance, merge_dista
     return labels, centroids, raw, sample
 
 
-def node_grouping(embeddings, grouping=GROUPING, residual=None):
+def node_grouping(embeddings, grouping=GROUPING, residual=RESIDUAL):
     """Labels per row of unit `embeddings` [N,D] as node/src/group `group` computes them (with the
-    node's optional ResidualPass when `residual` is (min_cluster_size, min_samples, noise distance));
+    node's ResidualPass when `residual` is (min_cluster_size, min_samples, noise distance), as by
+    default; None: the first pass alone);
     and the first HDBSCAN's own labels on its subsample with the subsample's indices."""
     min_cluster_size, min_samples, noise_distance, merge_distance = grouping
     everything = np.arange(embeddings.shape[0])

@@ -54,7 +54,9 @@ pub fn object_list<'a>(
     let priors = vocabulary.map_or(&no_priors, |v| &v.priors);
     map.instances
         .iter()
-        .filter(|i| vocabulary.is_none_or(|v| v.is_listed(&i.prototype, i.gaussians.len())))
+        .filter(|i| {
+            vocabulary.is_none_or(|v| v.is_listed(&i.prototype, i.gaussians.len(), i.observations))
+        })
         .filter_map(|i| {
             // Longer than any object of the vocabulary could be: no object (a room-sized
             // instance named "sink" was listed on benchmark 9604).

@@ -9,18 +9,20 @@
 //! closer than that are density modes of one instance that a small `min_cluster_size` split. A
 //! small `min_cluster_size` is what lets small objects form clusters at all.
 //!
-//! A second, residual pass ([`ResidualPass`], off by default) clusters what the first left as
+//! A second, residual pass ([`ResidualPass`], on by default) clusters what the first left as
 //! noise, with half the density parameters (15 / 5 against 30 / 10) and a tighter noise distance;
 //! the first pass's clusters stay exactly as they were. An object too small for the first pass (a
 //! box, a bin, a lamp: a few hundred embeddings in a window, against tens of thousands of room and
-//! furniture) stands out once the large clusters are out of the way. Measured (`eval map`, paired
-//! against it off): clean benchmark 0-29 recall@0.25 / @0.5 +3.3 (+1.4 to +5.2) / +1.6 points,
-//! precision -0.4 (within the spread), objects no window grouped 30 -> 20; but under `--effects
-//! realistic` (10-29) recall@0.25 +1.2 and precision -5.4 (-9.4 to -1.7): a noisy camera's residual
-//! holds pieces of objects whose embeddings are as tight as a small object's (a noise distance of
-//! 0.7 instead of 0.35: -6.3). A real camera is the product's case, so it is not the default.
-//! Halving `min_cluster_size` for the one pass instead found small objects too, but split large
-//! ones and cost 5.7 points of precision under `--effects realistic` (0-9).
+//! furniture) stands out once the large clusters are out of the way. Alone it finds objects and
+//! fragments both: a noisy camera's residual holds pieces of objects whose embeddings are as
+//! tight as a small object's (`eval map --against` the first pass alone: recall@0.25 +1.1 to +4.8
+//! points, precision -0.1 to -5.3 on benchmark 7000-7019, 8000-8019, 10-29 `realistic` and layouts
+//! 0-19 / 80-99). A fragment is small and seldom seen twice, so the object list holds small
+//! instances back until a second window confirms them
+//! ([`semantics::MIN_SMALL_SIGHTINGS`]); the two together are the default (figures in the
+//! commit that made it so). Halving `min_cluster_size` for the one pass instead found small
+//! objects too, but split large ones and cost 5.7 points of precision under `--effects
+//! realistic` (0-9).
 pub mod blobs;
 pub mod cleaning;
 pub mod hdbscan;
@@ -51,8 +53,8 @@ pub struct GroupingParams {
     /// Clusters whose unit centroids are at most this far apart (ℓ2) are one instance; 0 keeps
     /// HDBSCAN's clusters as they are.
     pub merge_distance: f32,
-    /// A second HDBSCAN over the embeddings the first left as noise (`None`: none, the
-    /// default). See the module notes.
+    /// A second HDBSCAN over the embeddings the first left as noise (the default runs it;
+    /// `None`: the first pass alone). See the module notes.
     pub residual: Option<ResidualPass>,
 }
 
@@ -97,7 +99,7 @@ impl Default for GroupingParams {
             noise_distance: 0.7,
             // Well under the push margin (m = 1) that separates trained instances.
             merge_distance: 0.4,
-            residual: None,
+            residual: Some(ResidualPass::default()),
         }
     }
 }
