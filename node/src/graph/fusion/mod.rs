@@ -62,6 +62,7 @@ impl FusionReport {
     fn record_folds(&mut self, folded: Vec<(String, String)>) -> rustc_hash::FxHashSet<String> {
         let mut survivors = rustc_hash::FxHashSet::default();
         for (absorbed, survivor) in folded {
+            tracing::debug!(%absorbed, %survivor, "fold: one object by the map's rules");
             for id in self.assigned.iter_mut().filter(|id| **id == absorbed) {
                 id.clone_from(&survivor);
             }
@@ -194,6 +195,11 @@ impl SceneMap {
                         survivor[d] = j;
                         matched[d] = true;
                         let duplicate = self.instances[d].clone();
+                        tracing::debug!(
+                            absorbed = %duplicate.id,
+                            survivor = %self.instances[j].id,
+                            "fold: a duplicate the sighting revealed"
+                        );
                         report
                             .absorbed
                             .push((duplicate.id.clone(), self.instances[j].id.clone()));
@@ -207,11 +213,24 @@ impl SceneMap {
                     m.confidence = (m.confidence + p.confirm_gain).min(1.0);
                     m.observations += 1;
                     m.last_seen_nanos = sighting.stamp_nanos;
+                    tracing::debug!(
+                        window_instance = i,
+                        gaussians = w.gaussians.len(),
+                        instance = %m.id,
+                        as_part = association.from_parts[i],
+                        "sighting"
+                    );
                     report.assigned.push(m.id.clone());
                     report.merged += 1;
                 }
                 None => {
                     let id = self.new_id();
+                    tracing::debug!(
+                        window_instance = i,
+                        gaussians = w.gaussians.len(),
+                        instance = %id,
+                        "birth"
+                    );
                     report.assigned.push(id.clone());
                     self.instances.push(born(id, w, sighting, range_noise, p));
                     report.born += 1;
