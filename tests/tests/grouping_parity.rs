@@ -6,7 +6,7 @@
 
 use std::collections::HashMap;
 
-use groupforward::group::{group, GroupingParams, ResidualPass};
+use groupforward::group::{group, GroupingParams};
 use groupforward_tests::{root, venv_python};
 
 /// Unit 8-d embeddings: seven tight clusters of different sizes on the sphere, two of them 0.29
@@ -61,14 +61,8 @@ fn embeddings() -> Vec<f32> {
 #[test]
 fn the_python_grouping_in_train_gives_the_node_s_labels() {
     let points = embeddings();
-    // With the residual pass, as by default.
-    let residual = ResidualPass::default();
-    let params = GroupingParams {
-        residual: Some(residual),
-        ..GroupingParams::default()
-    };
-    assert_eq!(params, GroupingParams::default());
-    let rust = group(&points, 8, &params).unwrap();
+    // Both at their defaults (the residual pass included): the Python constants are copies.
+    let rust = group(&points, 8, &GroupingParams::default()).unwrap();
     let dir = tempfile::tempdir().unwrap();
     let file = dir.path().join("embeddings.f32");
     std::fs::write(
@@ -84,12 +78,9 @@ fn the_python_grouping_in_train_gives_the_node_s_labels() {
          sys.path.insert(0, {train:?})\n\
          from gf.grouping import node_grouping\n\
          e = np.fromfile({file:?}, dtype='<f4').reshape(-1, 8)\n\
-         print(json.dumps(node_grouping(e, residual=({size}, {samples}, {distance}))[0].tolist()))\n",
+         print(json.dumps(node_grouping(e)[0].tolist()))\n",
         train = root().join("train").display().to_string(),
         file = file.display().to_string(),
-        size = residual.density.min_cluster_size,
-        samples = residual.density.min_samples,
-        distance = residual.noise_distance,
     );
     let stdout = venv_python(&script);
     let python_labels: Vec<i64> = serde_json::from_slice(&stdout).unwrap();
