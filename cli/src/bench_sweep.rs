@@ -12,6 +12,7 @@ use groupforward_harness::eval::run::{record_scene, replay_scene, RecordedScene}
 use groupforward_sim::scene::SceneFile;
 
 use crate::eval::{eval_config, shipped_models, Scored};
+use crate::eval_command::ModelArgs;
 use crate::sim::progress_bar;
 
 /// One point of the sweep: the shipped default with one knob turned.
@@ -171,7 +172,9 @@ pub fn sweep(
     let runs =
         (0..rounds.max(1)).flat_map(|round| settings.iter().enumerate().map(move |s| (round, s)));
     for (round, (index, setting)) in runs {
-        let mut config = eval_config(Some(shipped_models().join(setting.model)));
+        let mut config = eval_config(&ModelArgs::reconstruction(Some(
+            shipped_models().join(setting.model),
+        )));
         config.window.views = setting.views;
         config.window.features_ahead = setting.features_ahead;
         config.models.intra_op_spinning = setting.spinning;

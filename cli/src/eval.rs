@@ -8,6 +8,7 @@
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
+use crate::eval_command::ModelArgs;
 use anyhow::{bail, Context, Result};
 use groupforward::config::Config;
 use groupforward::ingest::DepthValidity;
@@ -67,14 +68,17 @@ pub fn split_scenes(split: &str, first_index: u64, count: u64) -> Result<Vec<Sce
         .collect()
 }
 
-/// The node's default config with the shipped models, or `model` as the reconstruction model.
-pub fn eval_config(model: Option<PathBuf>) -> Config {
+/// The node's default config with the shipped models, or the ones `models` names instead.
+pub fn eval_config(models: &ModelArgs) -> Config {
     let mut config = Config {
         models: ModelsSection::shipped_in(&shipped_models()),
         ..Config::default()
     };
-    if let Some(model) = model {
-        config.models.reconstruction = Some(model);
+    if let Some(model) = &models.model {
+        config.models.reconstruction = Some(model.clone());
+    }
+    if let Some(semantic) = &models.semantic_model {
+        config.models.semantic = Some(semantic.clone());
     }
     config
 }
@@ -190,7 +194,7 @@ pub fn invalid_fraction(depth: &DepthValidity) -> f64 {
 
 pub fn eval_map(
     files: &[SceneFile],
-    model: Option<PathBuf>,
+    models: &ModelArgs,
     effects: Option<&str>,
     against: Option<&Path>,
     out: &Path,
@@ -215,8 +219,7 @@ pub fn eval_map(
                 .collect()
         })
         .transpose()?;
-    let config = eval_config(model);
-    let models = shipped_models();
+    let config = eval_config(models);
     let mut window_models = WindowModels::load(&config.models, &config.semantics)
         .context("loading the models (`make setup` installs ONNX Runtime)")?;
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
@@ -322,6 +325,7 @@ pub fn eval_map(
     let stages = summarise(&window_times);
     let window = stages.iter().find(|s| s.stage == Stage::Window).copied();
     let reconstruction = config.models.reconstruction.clone().unwrap_or_default();
+    let semantic = config.models.semantic.clone().unwrap_or_default();
     let json = serde_json::json!({
         "summary": summary,
         "counts": total,
@@ -359,7 +363,8 @@ pub fn eval_map(
         "models": {
             "reconstruction": reconstruction.display().to_string(),
             "reconstruction_sha256": model_hash(&reconstruction)?,
-            "semantic_sha256": model_hash(config.models.semantic.as_deref().unwrap_or(&models))?,
+            "semantic": semantic.display().to_string(),
+            "semantic_sha256": model_hash(&semantic)?,
         },
         "config": {
             "window": config.window,

@@ -10,6 +10,7 @@ use groupforward_sim::scene::SceneFile;
 use serde_json::Value;
 
 use crate::eval::{eval_config, eval_map};
+use crate::eval_command::ModelArgs;
 use crate::eval_refer::eval_refer;
 use crate::eval_window::eval_window;
 
@@ -20,9 +21,10 @@ pub fn eval_all(
     out: &Path,
 ) -> Result<()> {
     let part = |name: &str| -> PathBuf { out.join(name) };
-    eval_window(files, None, windows, &part("window"))?;
-    eval_map(files, None, effects, None, &part("map"))?;
-    eval_refer(files, &eval_config(None), None, false, &part("refer"))?;
+    let shipped = ModelArgs::default();
+    eval_window(files, &shipped, windows, &part("window"))?;
+    eval_map(files, &shipped, effects, None, &part("map"))?;
+    eval_refer(files, &eval_config(&shipped), None, false, &part("refer"))?;
     let read = |name: &str| -> Result<Value> {
         let path = part(name).join("summary.json");
         let text = std::fs::read_to_string(&path)

@@ -28,6 +28,27 @@ pub struct ScenesArgs {
     effects: Option<String>,
 }
 
+/// Which models an evaluation loads (default: the shipped ones).
+#[derive(Debug, Clone, Default, clap::Args)]
+pub struct ModelArgs {
+    /// Reconstruction model manifest (default: the shipped RGB-D model).
+    #[arg(long)]
+    pub model: Option<PathBuf>,
+    /// Semantic model manifest (default: the shipped Semantic-mini), e.g. a candidate written by
+    /// `train/export_semantic.py`, to be paired with the shipped one through `--against`.
+    #[arg(long)]
+    pub semantic_model: Option<PathBuf>,
+}
+
+impl ModelArgs {
+    pub fn reconstruction(model: Option<PathBuf>) -> Self {
+        Self {
+            model,
+            ..Self::default()
+        }
+    }
+}
+
 impl ScenesArgs {
     fn files(&self) -> Result<Vec<SceneFile>> {
         scene_files(
@@ -48,9 +69,8 @@ pub enum EvalCommand {
     Map {
         #[command(flatten)]
         scenes: ScenesArgs,
-        /// Reconstruction model manifest (default: the shipped RGB-D model).
-        #[arg(long)]
-        model: Option<PathBuf>,
+        #[command(flatten)]
+        models: ModelArgs,
         /// An earlier run's output directory over the same scenes: also print the paired
         /// difference of the headline figures with its 95% interval (is a change beyond the
         /// spread between scenes?).
@@ -66,9 +86,8 @@ pub enum EvalCommand {
     Window {
         #[command(flatten)]
         scenes: ScenesArgs,
-        /// Reconstruction model manifest (default: the shipped RGB-D model).
-        #[arg(long)]
-        model: Option<PathBuf>,
+        #[command(flatten)]
+        models: ModelArgs,
         /// Windows per scene, spread over its trajectory.
         #[arg(long, default_value_t = 2)]
         windows: usize,
@@ -97,6 +116,8 @@ pub enum EvalCommand {
         /// instead of the generated ones; only lines whose `scene` is replayed are asked.
         #[arg(long)]
         expressions: Option<PathBuf>,
+        #[command(flatten)]
+        models: ModelArgs,
         /// Also answer the single-target expressions without instances (the paper's ablation:
         /// semantic features lifted per voxel, the target phrase's voxels boxed) and compare.
         #[arg(long)]
@@ -121,22 +142,22 @@ pub fn run(command: EvalCommand) -> Result<()> {
     match command {
         EvalCommand::Map {
             scenes,
-            model,
+            models,
             against,
             out,
         } => eval_map(
             &scenes.files()?,
-            model,
+            &models,
             scenes.effects.as_deref(),
             against.as_deref(),
             &out,
         ),
         EvalCommand::Window {
             scenes,
-            model,
+            models,
             windows,
             out,
-        } => crate::eval_window::eval_window(&scenes.files()?, model, windows, &out),
+        } => crate::eval_window::eval_window(&scenes.files()?, &models, windows, &out),
         EvalCommand::All {
             scenes,
             windows,
@@ -148,6 +169,7 @@ pub fn run(command: EvalCommand) -> Result<()> {
         EvalCommand::Refer {
             scenes,
             expressions,
+            models,
             baseline,
             evidence,
             reasoner,
@@ -156,7 +178,7 @@ pub fn run(command: EvalCommand) -> Result<()> {
             out,
         } => {
             let files = scenes.files()?;
-            let mut config = eval_config(None);
+            let mut config = eval_config(&models);
             config.refer.reasoner = reasoner;
             config.refer.vlm.endpoint = vlm_endpoint;
             config.refer.vlm.model = vlm_model;
@@ -165,5 +187,30 @@ pub fn run(command: EvalCommand) -> Result<()> {
                 .unwrap_or_default();
             crate::eval_refer::eval_refer(&files, &config, expressions.as_deref(), baseline, &out)
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::eval::shipped_models;
+
+    #[test]
+    fn a_named_semantic_model_replaces_only_the_shipped_semantic_model() {
+        let candidate = PathBuf::from("/tmp/candidate/semantic.toml");
+        let config = eval_config(&ModelArgs {
+            semantic_model: Some(candidate.clone()),
+            ..ModelArgs::default()
+        });
+        assert_eq!(config.models.semantic, Some(candidate));
+        assert_eq!(
+            config.models.reconstruction,
+            Some(shipped_models().join("groupforward-mini-rgbd.toml"))
+        );
+        let shipped = eval_config(&ModelArgs::default());
+        assert_eq!(
+            shipped.models.semantic,
+            Some(shipped_models().join("semantic-mini.toml"))
+        );
     }
 }

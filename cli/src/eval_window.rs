@@ -3,7 +3,7 @@
 //! window), `DIR/summary.json` and `DIR/summary.md`, and prints the table.
 
 use std::io::Write;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use anyhow::{Context, Result};
 use groupforward::group::semantics::OTHER_PHRASE;
@@ -16,6 +16,7 @@ use groupforward_sim::scene::SceneFile;
 use groupforward_sim::simulation::Simulation;
 
 use crate::eval::{eval_config, model_hash};
+use crate::eval_command::ModelArgs;
 use crate::sim::progress_bar;
 
 /// Means of one group of windows (NaN-free: windows without a score are left out of its mean).
@@ -56,12 +57,12 @@ fn means(rows: &[&WindowScore]) -> Means {
 
 pub fn eval_window(
     files: &[SceneFile],
-    model: Option<PathBuf>,
+    models: &ModelArgs,
     windows: usize,
     out: &Path,
 ) -> Result<()> {
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    let config = eval_config(model);
+    let config = eval_config(models);
     let views = config.window.views;
     let mut models = WindowModels::load(&config.models, &config.semantics)
         .context("loading the models (`make setup` installs ONNX Runtime)")?;
