@@ -33,6 +33,8 @@ pub struct Setting {
     pub features_ahead: bool,
     /// A second HDBSCAN over the first one's noise (`group::ResidualPass`).
     pub residual: Option<groupforward::group::ResidualPass>,
+    /// HDBSCAN's grid (`group::GroupingParams::resolution`; 0: every embedding on its own).
+    pub resolution: f32,
 }
 
 const RGBD: &str = "groupforward-mini-rgbd.toml";
@@ -51,6 +53,7 @@ impl Setting {
             spinning: groupforward::model::ModelsSection::default().intra_op_spinning,
             features_ahead: groupforward::window::WindowSection::default().features_ahead,
             residual: grouping.residual,
+            resolution: grouping.resolution,
         }
     }
 
@@ -100,6 +103,8 @@ pub fn settings(quick: bool) -> Vec<Setting> {
         Setting::with("min_cluster_60", |s| s.min_cluster_size = 60),
         // The default before the residual pass was (2026-11-29), side by side with it.
         Setting::with("first_pass_only", |s| s.residual = None),
+        // The default before HDBSCAN ran on a grid of the embeddings (2026-11-29).
+        Setting::with("exact_hdbscan", |s| s.resolution = 0.0),
         Setting::with("rgb_model", |s| s.model = RGB),
         // The shipped default before its speed work (2026-11-25), side by side with it.
         Setting::with("ort_spinning", |s| s.spinning = true),
@@ -210,6 +215,7 @@ pub fn sweep(
         models.grouping.hdbscan.min_cluster_size = setting.min_cluster_size;
         models.grouping.hdbscan.min_samples = setting.min_samples;
         models.grouping.residual = setting.residual;
+        models.grouping.resolution = setting.resolution;
         let bar = progress_bar(
             recorded.len() as u64,
             &format!("{} (round {})", setting.name, round + 1),

@@ -6,13 +6,15 @@
 
 use std::collections::HashMap;
 
-use groupforward::group::{group, GroupingParams};
+use groupforward::group::hdbscan::{hdbscan, hdbscan_gridded};
+use groupforward::group::{group, normalize_rows, GroupingParams};
 use groupforward_tests::{root, venv_python};
 
 /// Unit 8-d embeddings: seven tight clusters of different sizes on the sphere, two of them 0.29
 /// apart (one instance split in two density modes: the merge step must join them), a small object
-/// of 20 (too few for the first pass: the residual pass finds it), and scattered points far from
-/// every cluster (noise by the distance threshold). A fixed LCG keeps them the same
+/// of 20 (too few for the first pass: the residual pass finds it), one crowded as a trained model
+/// crowds an instance (its points share the cells of HDBSCAN's grid), and scattered points far
+/// from every cluster (noise by the distance threshold). A fixed LCG keeps them the same
 /// everywhere.
 fn embeddings() -> Vec<f32> {
     let mut state = 0x2545_f491_4f6c_dd1du64;
@@ -44,10 +46,12 @@ fn embeddings() -> Vec<f32> {
     let mut out = Vec::new();
     for (k, centre) in centres.iter().enumerate() {
         let members = if k == 7 { 20 } else { 120 + 60 * k };
-        for _ in 0..members {
+        for j in 0..members {
+            // The crowded one: a tight core inside a looser halo.
+            let jitter = if k == 2 && j % 2 == 0 { 0.0004 } else { 0.03 };
             let point: Vec<f32> = centre
                 .iter()
-                .map(|c| c + 0.03 * (uniform() - 0.5))
+                .map(|c| c + jitter * (uniform() - 0.5))
                 .collect();
             out.extend(unit(point));
         }
@@ -56,6 +60,30 @@ fn embeddings() -> Vec<f32> {
         out.extend(unit((0..8).map(|_| uniform() - 0.5).collect()));
     }
     out
+}
+
+/// One bijection between the two label sets, with noise (-1) mapped to noise.
+fn assert_same_partition(rust: &[i32], python: &[i64], what: &str) {
+    assert_eq!(python.len(), rust.len(), "{what}");
+    let mut forward: HashMap<i32, i64> = HashMap::new();
+    let mut backward: HashMap<i64, i32> = HashMap::new();
+    for (&r, &p) in rust.iter().zip(python) {
+        assert_eq!(
+            *forward.entry(r).or_insert(p),
+            p,
+            "{what}: Rust label {r} is two Python labels"
+        );
+        assert_eq!(
+            *backward.entry(p).or_insert(r),
+            r,
+            "{what}: Python label {p} is two Rust labels"
+        );
+    }
+    assert_eq!(
+        forward.get(&-1),
+        Some(&-1),
+        "{what}: noise is noise in both"
+    );
 }
 
 #[test]
@@ -84,23 +112,16 @@ fn the_python_grouping_in_train_gives_the_node_s_labels() {
     );
     let stdout = venv_python(&script);
     let python_labels: Vec<i64> = serde_json::from_slice(&stdout).unwrap();
-    assert_eq!(python_labels.len(), rust.labels.len());
-    // One bijection between the two label sets, with noise (-1) mapped to noise.
-    let mut forward: HashMap<i32, i64> = HashMap::new();
-    let mut backward: HashMap<i64, i32> = HashMap::new();
-    for (&r, &p) in rust.labels.iter().zip(&python_labels) {
-        assert_eq!(
-            *forward.entry(r).or_insert(p),
-            p,
-            "Rust label {r} is two Python labels"
-        );
-        assert_eq!(
-            *backward.entry(p).or_insert(r),
-            r,
-            "Python label {p} is two Rust labels"
-        );
-    }
-    assert_eq!(forward.get(&-1), Some(&-1), "noise is noise in both");
+    assert_same_partition(&rust.labels, &python_labels, "grouping");
+    // The node clusters a grid of the embeddings, the Python copy every embedding: the fixture's
+    // crowded instance is where the two first HDBSCANs differ, and the groupings still agree.
+    let mut unit = points.clone();
+    normalize_rows(&mut unit, 8);
+    let defaults = GroupingParams::default();
+    let on_grid =
+        hdbscan_gridded(&unit, 8, &defaults.hdbscan, f64::from(defaults.resolution)).unwrap();
+    let every_point = hdbscan(&unit, 8, &defaults.hdbscan).unwrap();
+    assert_ne!(on_grid.labels, every_point.labels, "the grid matters here");
     // The fixture exercises what it claims: six instances after the twin modes merge, a seventh
     // from the residual pass, and noise.
     assert_eq!(

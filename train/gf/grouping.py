@@ -11,6 +11,10 @@ MAX_CLUSTER_POINTS = 20_000
 GROUPING = (30, 10, 0.7, 0.4)
 # The node's default ResidualPass: min_cluster_size, min_samples, noise distance.
 RESIDUAL = (15, 5, 0.35)
+# The node runs HDBSCAN on a grid of its embeddings (GroupingParams::resolution, 0.005: a cell's
+# embeddings one point weighted by their number); hdbscan takes no weights, so this copy clusters
+# every embedding. The two differ only below the resolution: after the centroids' assignment they
+# agree at ARI >= 0.996 on benchmark windows, and exactly on the parity test's fixture.
 
 
 def unit_centroids(embeddings, labels, ids):

@@ -23,14 +23,17 @@ pub(super) struct CondensedRow {
     pub(super) size: usize,
 }
 
-/// Single-linkage merges (left, right, distance, size) from MST edges; node ids ≥ n are merges.
+/// Single-linkage merges (left, right, distance, size) from MST edges over `weights.len()` points
+/// (a point stands for `weights[i]` embeddings); node ids ≥ n are merges.
 pub(super) fn single_linkage(
-    n: usize,
+    weights: &[usize],
     mut edges: Vec<(usize, usize, f64)>,
 ) -> Vec<(usize, usize, f64, usize)> {
+    let n = weights.len();
     edges.sort_by(|x, y| x.2.total_cmp(&y.2).then((x.0, x.1).cmp(&(y.0, y.1))));
     let mut parent: Vec<usize> = (0..2 * n).collect();
     let mut size = vec![1usize; 2 * n];
+    size[..n].copy_from_slice(weights);
     let mut merges = Vec::with_capacity(n.saturating_sub(1));
     for (a, b, d) in edges {
         let (ra, rb) = (find(&mut parent, a), find(&mut parent, b));
@@ -43,13 +46,25 @@ pub(super) fn single_linkage(
     merges
 }
 
+/// The condensed tree: a point falls out of its cluster with its weight as `size`. A point that
+/// weighs a cluster's size alone (a grid cell of at least `min_cluster_size` embeddings) carries
+/// its cluster on to `leaf_lambda` (1 / the grid's resolution: below it the cell's embeddings are
+/// not told apart), or to where it split off if that is later.
 pub(super) fn condense(
-    n: usize,
+    weights: &[usize],
     merges: &[(usize, usize, f64, usize)],
     min_cluster_size: usize,
+    leaf_lambda: f64,
 ) -> Vec<CondensedRow> {
+    let n = weights.len();
     let root = n + merges.len() - 1;
-    let size_of = |node: usize| if node < n { 1 } else { merges[node - n].3 };
+    let size_of = |node: usize| {
+        if node < n {
+            weights[node]
+        } else {
+            merges[node - n].3
+        }
+    };
     let children = |node: usize| (merges[node - n].0, merges[node - n].1);
     // Every leaf under `node`.
     let leaves = |node: usize, out: &mut Vec<usize>| {
@@ -68,10 +83,16 @@ pub(super) fn condense(
     label[root] = n;
     let mut next = n + 1;
     let mut rows = Vec::new();
-    let mut queue = std::collections::VecDeque::from([root]);
+    let mut queue = std::collections::VecDeque::from([(root, 0.0f64)]);
     let mut fallen = Vec::new();
-    while let Some(node) = queue.pop_front() {
+    while let Some((node, entered)) = queue.pop_front() {
         if node < n {
+            rows.push(CondensedRow {
+                parent: label[node],
+                child: node,
+                lambda: entered.max(leaf_lambda),
+                size: weights[node],
+            });
             continue;
         }
         let (left, right) = children(node);
@@ -92,11 +113,11 @@ pub(super) fn condense(
                     lambda,
                     size: size_of(child),
                 });
-                queue.push_back(child);
+                queue.push_back((child, lambda));
             } else if big {
                 // The cluster carries on through its big child.
                 label[child] = here;
-                queue.push_back(child);
+                queue.push_back((child, lambda));
             } else {
                 fallen.clear();
                 leaves(child, &mut fallen);
@@ -105,7 +126,7 @@ pub(super) fn condense(
                         parent: here,
                         child: point,
                         lambda,
-                        size: 1,
+                        size: weights[point],
                     });
                 }
             }

