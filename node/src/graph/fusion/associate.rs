@@ -15,6 +15,13 @@ use crate::graph::instance::{bounds, cosine};
 /// when at least this share of its points lies on it.
 const PART_COVERED: f32 = 0.5;
 
+/// A persistent instance is a duplicate a sighting reveals only when the sighting covers at
+/// least this share of its points: the window grouped it with the instance it matched (one
+/// object seen whole after two partial views). A sighting that only grazes a neighbour (a box
+/// of a row, whose points lie within the overlap radius of its neighbour's face) is no evidence
+/// that the two are one (layouts 96: three boxes side by side folded into one).
+const DUPLICATE_COVERED: f32 = 0.5;
+
 /// What association decided for one window.
 #[derive(Debug)]
 pub(super) struct Association {
@@ -22,8 +29,9 @@ pub(super) struct Association {
     pub(super) pairs: Vec<Option<usize>>,
     /// Per window instance, whether its pair was found as a part (not one to one).
     pub(super) from_parts: Vec<bool>,
-    /// Per window instance, every persistent instance that passed the gate with it.
-    gated: Vec<Vec<usize>>,
+    /// Per window instance, every persistent instance that passed the gate with it, with the
+    /// share of that instance's points the window instance covers.
+    gated: Vec<Vec<(usize, f32)>>,
 }
 
 /// Associate `window` with `map`'s instances; `same_kind` (the vocabulary) says whether two
@@ -50,7 +58,7 @@ pub(super) fn associate(
     let n = map.instances.len();
     let mut pairs: Vec<Option<usize>> = vec![None; rows];
     let mut from_parts = vec![false; rows];
-    let mut gated: Vec<Vec<usize>> = vec![Vec::new(); rows];
+    let mut gated: Vec<Vec<(usize, f32)>> = vec![Vec::new(); rows];
     // Columns: every persistent instance, plus one "new instance" column per row so that
     // rows ≤ columns and birth is always possible (score 0).
     let scale = 1_000_000.0f32;
@@ -87,7 +95,7 @@ pub(super) fn associate(
                 }
                 None => overlap,
             };
-            gated[i].push(j);
+            gated[i].push((j, mf.covered_by(wf, radius)));
             weights[(i, j)] = (score * scale).max(1.0) as i64;
         }
     }
@@ -110,7 +118,7 @@ pub(super) fn associate(
         let wf = &window_footprints[i];
         pairs[i] = gated[i]
             .iter()
-            .filter_map(|&j| {
+            .filter_map(|&(j, _)| {
                 // Built: gated pairs passed the geometry gate above.
                 let mf = map_footprints[j].as_ref()?;
                 Some((j, wf.covered_by(mf, 1.5 * wf.spacing.max(mf.spacing))))
@@ -129,9 +137,10 @@ pub(super) fn associate(
 
 impl Association {
     /// Per window instance, the persistent instances that pass the gate for it but are no window
-    /// instance's best, and look like the one it chose: duplicates of one object (born when an
-    /// earlier view overlapped too little). A window instance that spans two different objects
-    /// (a chair the window grouped with its table) folds nothing.
+    /// instance's best, look like the one it chose and are covered by the sighting
+    /// ([`DUPLICATE_COVERED`]): duplicates of one object (born when an earlier view overlapped too
+    /// little). A window instance that spans two different objects (a chair the window grouped
+    /// with its table) folds nothing.
     pub(super) fn duplicates(
         &self,
         map: &SceneMap,
@@ -151,8 +160,13 @@ impl Association {
             .map(|(pair, gated)| match pair {
                 Some(j) => gated
                     .iter()
-                    .copied()
-                    .filter(|&other| other != *j && !chosen.contains(&other) && alike(*j, other))
+                    .filter(|&&(other, covered)| {
+                        other != *j
+                            && covered >= DUPLICATE_COVERED
+                            && !chosen.contains(&other)
+                            && alike(*j, other)
+                    })
+                    .map(|&(other, _)| other)
                     .collect(),
                 None => Vec::new(),
             })

@@ -209,38 +209,21 @@ impl SceneMap {
 mod tests {
     use super::*;
     use crate::graph::instance::FusionParams;
-    use glam::Quat;
 
     /// Points on the faces of an axis-aligned box (`lo`..`hi`) every 4 cm, as a map holds them.
     fn block(lo: Vec3, hi: Vec3) -> Gaussians {
-        let mut g = Gaussians::with_dims(0, 0);
         let steps = ((hi - lo) / 0.04).ceil().as_uvec3();
-        for i in 0..=steps.x {
-            for j in 0..=steps.y {
-                for k in 0..=steps.z {
-                    let on_face = [
-                        i == 0 || i == steps.x,
-                        j == 0 || j == steps.y,
-                        k == 0 || k == steps.z,
-                    ];
-                    if !on_face.contains(&true) {
-                        continue;
-                    }
-                    let t =
-                        Vec3::new(i as f32, j as f32, k as f32) / steps.as_vec3().max(Vec3::ONE);
-                    g.push(
-                        lo + (hi - lo) * t,
-                        0.9,
-                        Vec3::splat(0.01),
-                        Quat::IDENTITY,
-                        Vec3::splat(0.5),
-                        &[],
-                        &[],
-                    );
-                }
-            }
-        }
-        g
+        let grid = (0..=steps.x)
+            .flat_map(|i| (0..=steps.y).flat_map(move |j| (0..=steps.z).map(move |k| (i, j, k))));
+        super::super::tests::gaussians_at(grid.filter_map(|(i, j, k)| {
+            let on_face = [
+                i == 0 || i == steps.x,
+                j == 0 || j == steps.y,
+                k == 0 || k == steps.z,
+            ];
+            let t = Vec3::new(i as f32, j as f32, k as f32) / steps.as_vec3().max(Vec3::ONE);
+            on_face.contains(&true).then(|| lo + (hi - lo) * t)
+        }))
     }
 
     fn sighting(gaussians: Gaussians, prototype: [f32; 3]) -> WindowInstance {

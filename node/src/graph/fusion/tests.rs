@@ -7,23 +7,10 @@ use crate::recon::gaussians::Gaussians;
 use glam::Quat;
 use rand::{Rng, SeedableRng};
 
-/// Points along a random segment with a little spread: thin diagonal sets are where a fitted
-/// box pokes out of the points' axis-aligned bounds the most.
-fn rod(rng: &mut rand_chacha::ChaCha8Rng, centre: Vec3) -> Gaussians {
+/// Small opaque grey Gaussians at `points`: an instance for the map's geometry.
+pub(super) fn gaussians_at(points: impl IntoIterator<Item = Vec3>) -> Gaussians {
     let mut g = Gaussians::with_dims(0, 0);
-    let half = Vec3::new(
-        rng.random_range(-1.0..1.0),
-        rng.random_range(-1.0..1.0),
-        0.0,
-    ) * rng.random_range(0.05..1.5);
-    for k in 0..60 {
-        let t = k as f32 / 59.0 * 2.0 - 1.0;
-        let jitter = Vec3::new(
-            rng.random_range(-0.02..0.02),
-            rng.random_range(-0.02..0.02),
-            rng.random_range(0.0..0.3),
-        );
-        let p = centre + half * t + jitter;
+    for p in points {
         g.push(
             p,
             0.9,
@@ -35,6 +22,25 @@ fn rod(rng: &mut rand_chacha::ChaCha8Rng, centre: Vec3) -> Gaussians {
         );
     }
     g
+}
+
+/// Points along a random segment with a little spread: thin diagonal sets are where a fitted
+/// box pokes out of the points' axis-aligned bounds the most.
+fn rod(rng: &mut rand_chacha::ChaCha8Rng, centre: Vec3) -> Gaussians {
+    let half = Vec3::new(
+        rng.random_range(-1.0..1.0),
+        rng.random_range(-1.0..1.0),
+        0.0,
+    ) * rng.random_range(0.05..1.5);
+    gaussians_at((0..60).map(|k| {
+        let t = k as f32 / 59.0 * 2.0 - 1.0;
+        let jitter = Vec3::new(
+            rng.random_range(-0.02..0.02),
+            rng.random_range(-0.02..0.02),
+            rng.random_range(0.0..0.3),
+        );
+        centre + half * t + jitter
+    }))
 }
 
 #[test]
@@ -269,4 +275,46 @@ fn instances_a_window_saw_apart_are_not_folded_when_their_boxes_grow_into_one_sp
             .unwrap();
     assert_eq!(restored.seen_apart, kept.seen_apart);
     assert_eq!(restored.seen_apart.len(), 1);
+}
+
+/// The visible faces (top and front, y = 0) of a box from `x0` to `x1`, 0.4 m deep and tall,
+/// points 2 cm apart, keeping those `keep` accepts.
+fn box_faces(x0: f32, x1: f32, keep: impl Fn(Vec3) -> bool) -> Gaussians {
+    let steps =
+        |a: f32, b: f32| (0..=((b - a) / 0.02).round() as usize).map(move |k| a + 0.02 * k as f32);
+    let top = steps(x0, x1).flat_map(|x| steps(0.0, 0.4).map(move |y| Vec3::new(x, y, 0.4)));
+    let front = steps(x0, x1).flat_map(|x| steps(0.0, 0.4).map(move |z| Vec3::new(x, 0.0, z)));
+    gaussians_at(top.chain(front).filter(|p| keep(*p)))
+}
+
+#[test]
+fn a_sighting_that_grazes_a_neighbour_reveals_no_duplicate_one_that_spans_it_does() {
+    // Two boxes of a row, 2 cm apart, alike, born as two in one window.
+    let row = |window: Vec<Gaussians>| {
+        let mut map = SceneMap::new(FusionParams::default());
+        let both = [
+            box_faces(0.0, 0.4, |_| true),
+            box_faces(0.42, 0.82, |_| true),
+        ];
+        map.fuse(
+            both.iter().map(|g| sighting(g, [1.0, 0.0, 0.0])).collect(),
+            &[],
+            1,
+        )
+        .unwrap();
+        assert_eq!(map.instances.len(), 2);
+        let sightings = window
+            .iter()
+            .map(|g| sighting(g, [1.0, 0.0, 0.0]))
+            .collect();
+        map.fuse(sightings, &[], 2).unwrap();
+        map
+    };
+    // The first box's side next to the second: a fifth of it lies within the overlap radius of
+    // the second's face, enough for the gate, but it covers little of the second.
+    let grazing = box_faces(0.0, 0.4, |p| p.x >= 0.3);
+    assert_eq!(row(vec![grazing]).instances.len(), 2);
+    // One window instance over both boxes (the window grouped them together): one object.
+    let spanning = box_faces(0.0, 0.82, |_| true);
+    assert_eq!(row(vec![spanning]).instances.len(), 1);
 }
