@@ -29,9 +29,10 @@ pub(super) struct Association {
     pub(super) pairs: Vec<Option<usize>>,
     /// Per window instance, whether its pair was found as a part (not one to one).
     pub(super) from_parts: Vec<bool>,
-    /// Per window instance, every persistent instance that passed the gate with it, with the
-    /// share of that instance's points the window instance covers.
-    gated: Vec<Vec<(usize, f32)>>,
+    /// Per window instance with a pair, the other persistent instances that passed the gate with
+    /// it, are no window instance's pair, and of whose points it covers at least
+    /// [`DUPLICATE_COVERED`]: the candidates for duplicates of its pair.
+    covered: Vec<Vec<usize>>,
 }
 
 /// Associate `window` with `map`'s instances; `same_kind` (the vocabulary) says whether two
@@ -58,7 +59,7 @@ pub(super) fn associate(
     let n = map.instances.len();
     let mut pairs: Vec<Option<usize>> = vec![None; rows];
     let mut from_parts = vec![false; rows];
-    let mut gated: Vec<Vec<(usize, f32)>> = vec![Vec::new(); rows];
+    let mut gated: Vec<Vec<usize>> = vec![Vec::new(); rows];
     // Columns: every persistent instance, plus one "new instance" column per row so that
     // rows ≤ columns and birth is always possible (score 0).
     let scale = 1_000_000.0f32;
@@ -95,7 +96,7 @@ pub(super) fn associate(
                 }
                 None => overlap,
             };
-            gated[i].push((j, mf.covered_by(wf, radius)));
+            gated[i].push(j);
             weights[(i, j)] = (score * scale).max(1.0) as i64;
         }
     }
@@ -118,7 +119,7 @@ pub(super) fn associate(
         let wf = &window_footprints[i];
         pairs[i] = gated[i]
             .iter()
-            .filter_map(|&(j, _)| {
+            .filter_map(|&j| {
                 // Built: gated pairs passed the geometry gate above.
                 let mf = map_footprints[j].as_ref()?;
                 Some((j, wf.covered_by(mf, 1.5 * wf.spacing.max(mf.spacing))))
@@ -128,10 +129,30 @@ pub(super) fn associate(
             .map(|(j, _)| j);
         from_parts[i] = pairs[i].is_some();
     }
+    // Coverage only for the few pairs that could be duplicates, once the pairs are known.
+    let chosen: Vec<usize> = pairs.iter().flatten().copied().collect();
+    let covered = (0..rows)
+        .map(|i| {
+            let Some(j) = pairs[i] else {
+                return Vec::new();
+            };
+            let wf = &window_footprints[i];
+            gated[i]
+                .iter()
+                .copied()
+                .filter(|&other| other != j && !chosen.contains(&other))
+                .filter(|&other| {
+                    map_footprints[other].as_ref().is_some_and(|mf| {
+                        mf.covered_by(wf, 1.5 * wf.spacing.max(mf.spacing)) >= DUPLICATE_COVERED
+                    })
+                })
+                .collect()
+        })
+        .collect();
     Association {
         pairs,
         from_parts,
-        gated,
+        covered,
     }
 }
 
@@ -147,7 +168,6 @@ impl Association {
         same_kind: &dyn Fn(&[f32], &[f32]) -> bool,
     ) -> Vec<Vec<usize>> {
         let p = map.params;
-        let chosen: Vec<usize> = self.pairs.iter().flatten().copied().collect();
         let alike = |a: usize, b: usize| {
             let (pa, pb) = (&map.instances[a].prototype, &map.instances[b].prototype);
             pa.is_empty()
@@ -156,17 +176,12 @@ impl Association {
         };
         self.pairs
             .iter()
-            .zip(&self.gated)
-            .map(|(pair, gated)| match pair {
-                Some(j) => gated
+            .zip(&self.covered)
+            .map(|(pair, covered)| match pair {
+                Some(j) => covered
                     .iter()
-                    .filter(|&&(other, covered)| {
-                        other != *j
-                            && covered >= DUPLICATE_COVERED
-                            && !chosen.contains(&other)
-                            && alike(*j, other)
-                    })
-                    .map(|&(other, _)| other)
+                    .copied()
+                    .filter(|&other| alike(*j, other))
                     .collect(),
                 None => Vec::new(),
             })

@@ -60,14 +60,10 @@ pub fn hdbscan(
     dims: usize,
     params: &HdbscanParams,
 ) -> Result<Clustering, HdbscanError> {
-    let n = check(points, dims, params)?;
-    if n < params.min_cluster_size.max(2) {
-        // Too few points for any cluster: all noise.
-        return Ok(Clustering {
-            labels: vec![-1; n],
-            n_clusters: 0,
-        });
-    }
+    let n = match check(points, dims, params)? {
+        Checked::Points(n) => n,
+        Checked::TooFew(noise) => return Ok(noise),
+    };
     let data: Vec<f64> = points.iter().map(|&v| f64::from(v)).collect();
     // A single point is never a cluster's size alone (min_cluster_size ≥ 2): no leaf λ is used.
     Ok(cluster_weighted(
@@ -94,12 +90,8 @@ pub fn hdbscan_gridded(
     if !(resolution.is_finite() && resolution > 0.0) {
         return Err(HdbscanError::Resolution(resolution));
     }
-    let n = check(points, dims, params)?;
-    if n < params.min_cluster_size.max(2) {
-        return Ok(Clustering {
-            labels: vec![-1; n],
-            n_clusters: 0,
-        });
+    if let Checked::TooFew(noise) = check(points, dims, params)? {
+        return Ok(noise);
     }
     let grid = grid::cells(points, dims, resolution);
     let by_cell = if grid.weights.len() == 1 {
@@ -118,8 +110,15 @@ pub fn hdbscan_gridded(
     })
 }
 
-/// The number of points, once shape, parameters and values are checked.
-fn check(points: &[f32], dims: usize, params: &HdbscanParams) -> Result<usize, HdbscanError> {
+/// What the checks of shape, parameters and values found.
+enum Checked {
+    /// This many points, enough for a cluster.
+    Points(usize),
+    /// Too few points for any cluster: all noise.
+    TooFew(Clustering),
+}
+
+fn check(points: &[f32], dims: usize, params: &HdbscanParams) -> Result<Checked, HdbscanError> {
     if dims == 0 || points.len() % dims != 0 {
         return Err(HdbscanError::Shape {
             len: points.len(),
@@ -137,7 +136,14 @@ fn check(points: &[f32], dims: usize, params: &HdbscanParams) -> Result<usize, H
     }) {
         return Err(HdbscanError::NonFinite(bad));
     }
-    Ok(n)
+    Ok(if n < params.min_cluster_size.max(2) {
+        Checked::TooFew(Clustering {
+            labels: vec![-1; n],
+            n_clusters: 0,
+        })
+    } else {
+        Checked::Points(n)
+    })
 }
 
 /// HDBSCAN over at least two points `data` (row-major), point i standing for `weights[i]`
