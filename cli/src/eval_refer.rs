@@ -261,6 +261,12 @@ pub fn eval_refer(
     Ok(())
 }
 
+/// Whether a wrong answer chose only objects among the expression's targets: for a refusal
+/// test, objects the trajectory saw too little of to count as observed.
+fn answers_only_what_it_names(r: &ReferRecord) -> bool {
+    !r.correct && !r.answered.is_empty() && r.answered.iter().all(|a| r.targets.contains(a))
+}
+
 fn write_outputs(records: &[ReferRecord], published_miou: Option<f64>, out: &Path) -> Result<()> {
     let mut csv = std::io::BufWriter::new(std::fs::File::create(out.join("expressions.csv"))?);
     writeln!(
@@ -316,6 +322,13 @@ fn write_outputs(records: &[ReferRecord], published_miou: Option<f64>, out: &Pat
             .unwrap_or(0.0)
     };
     let total = group(&all);
+    // A refusal test answered with the very object(s) it names: the trajectory did see them, in
+    // fewer pixels than the benchmark's line for "observed" (a box on a refrigerator's top).
+    let refusal_tests = of_truth(Truth::Refusal);
+    let answered_with_the_object = refusal_tests
+        .iter()
+        .filter(|r| answers_only_what_it_names(r))
+        .count();
     let (seen, refusals, every) = (
         group(&of_truth(Truth::Observed)),
         group(&of_truth(Truth::Refusal)),
@@ -367,6 +380,7 @@ fn write_outputs(records: &[ReferRecord], published_miou: Option<f64>, out: &Pat
         "published_masks_miou": published_miou,
         "targets_observed": seen,
         "refusals": refusals,
+        "refusals_answered_with_the_object": answered_with_the_object,
         "every_object": every,
         "groups": rows.iter().map(|(name, g)| serde_json::json!({"group": name, "scores": g})).collect::<Vec<_>>(),
     });
@@ -391,6 +405,11 @@ fn write_outputs(records: &[ReferRecord], published_miou: Option<f64>, out: &Pat
             g.referring_miou,
         );
     }
+    table += &format!(
+        "\nRefusal tests answered with the very object they name (seen, in fewer than the benchmark's {} pixels for \"observed\"): {answered_with_the_object} of {}.\n",
+        crate::eval::MIN_OBJECT_PIXELS,
+        refusal_tests.len()
+    );
     std::fs::write(out.join("summary.md"), &table)?;
     print!("{table}");
     if let Some(miou) = published_miou {
@@ -411,6 +430,42 @@ fn write_outputs(records: &[ReferRecord], published_miou: Option<f64>, out: &Pat
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_refusal_test_answered_with_the_object_it_names_is_told_apart() {
+        let record = |answered: &[u16], correct: bool| ReferRecord {
+            scene: "s".into(),
+            truth: Truth::Refusal,
+            expression: "the boxes on the refrigerator".into(),
+            relation: "on".into(),
+            view_dependent: false,
+            hard: false,
+            distractors: 0,
+            targets: vec![7, 9],
+            answered: answered.to_vec(),
+            correct,
+            topk_hit: false,
+            targets_in_map: false,
+            anchors_in_map: true,
+            iou: 0.0,
+            mask_iou: None,
+            millis: 1.0,
+            success: !correct,
+            message: String::new(),
+            reasoner_used: "builtin".into(),
+        };
+        assert!(answers_only_what_it_names(&record(&[7], false)));
+        assert!(answers_only_what_it_names(&record(&[9, 7], false)));
+        assert!(
+            !answers_only_what_it_names(&record(&[2], false)),
+            "another object"
+        );
+        assert!(
+            !answers_only_what_it_names(&record(&[7, 0], false)),
+            "and no object"
+        );
+        assert!(!answers_only_what_it_names(&record(&[], true)), "refused");
+    }
 
     #[test]
     fn a_label_the_benchmark_does_not_know_is_its_own_group_not_a_refused_file() {

@@ -519,6 +519,18 @@ fn the_object_list_leaves_out_structure_and_small_pieces_named_unsurely_or_seen_
     );
     // Without semantics there are no names to judge: listed.
     assert!(v.is_listed(&[], 1, 1));
+    // Tentative candidates for queries: small pieces the list holds back whose best name scores
+    // at least TENTATIVE_NAME; never what the list holds, structure, or a piece named vaguely.
+    use groupforward::group::semantics::TENTATIVE_NAME;
+    assert!(v.is_tentative(&sure, small, 1), "named surely, seen once");
+    assert!(!v.is_tentative(&sure, small, 2), "listed");
+    assert!(v.hypotheses(&unsure, 1)[0].1 >= TENTATIVE_NAME);
+    assert!(v.is_tentative(&unsure, small, 3), "named unsurely");
+    let vague = [0.5, 0.5, 0.45];
+    assert!(v.hypotheses(&vague, 1)[0].1 < TENTATIVE_NAME);
+    assert!(!v.is_tentative(&vague, small, 1), "named vaguely");
+    assert!(!v.is_tentative(&[0.0, 0.0, 1.0], small, 1), "structure");
+    assert!(!v.is_tentative(&[], 1, 1));
 }
 
 #[test]

@@ -46,6 +46,7 @@ fn node(id: &str, class: usize, x: f64) -> ReferNode {
         visibility: 1.0,
         confidence: 1.0,
         gaussians: 10,
+        tentative: false,
     }
 }
 

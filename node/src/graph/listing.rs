@@ -46,7 +46,28 @@ fn map_walls<'a>(
 pub fn object_list<'a>(
     map: &'a SceneMap,
     vocabulary: Option<&Vocabulary>,
+    fit: impl FnMut(&Instance, bool) -> Fitted,
+) -> Vec<Listed<'a>> {
+    list(map, vocabulary, fit, false)
+}
+
+/// [`object_list`] with the tentative candidates queries may also answer
+/// ([`Vocabulary::is_tentative`]: small pieces named surely that one window saw), marked
+/// [`Listed::tentative`].
+pub fn object_list_with_tentative<'a>(
+    map: &'a SceneMap,
+    vocabulary: Option<&Vocabulary>,
+    fit: impl FnMut(&Instance, bool) -> Fitted,
+) -> Vec<Listed<'a>> {
+    list(map, vocabulary, fit, true)
+}
+
+/// [`object_list`], with the tentative candidates where `with_tentative` asks for them.
+fn list<'a>(
+    map: &'a SceneMap,
+    vocabulary: Option<&Vocabulary>,
     mut fit: impl FnMut(&Instance, bool) -> Fitted,
+    with_tentative: bool,
 ) -> Vec<Listed<'a>> {
     let walls = std::cell::OnceCell::new();
     // Without a vocabulary nothing is named, so no prior applies.
@@ -54,14 +75,31 @@ pub fn object_list<'a>(
     let priors = vocabulary.map_or(&no_priors, |v| &v.priors);
     map.instances
         .iter()
-        .filter(|i| {
-            vocabulary.is_none_or(|v| v.is_listed(&i.prototype, i.gaussians.len(), i.observations))
-        })
         .filter_map(|i| {
+            let listed = vocabulary
+                .is_none_or(|v| v.is_listed(&i.prototype, i.gaussians.len(), i.observations));
+            let tentative = !listed
+                && with_tentative
+                && vocabulary.is_some_and(|v| {
+                    v.is_tentative(&i.prototype, i.gaussians.len(), i.observations)
+                });
+            if !listed && !tentative {
+                tracing::debug!(
+                    instance = %i.id,
+                    gaussians = i.gaussians.len(),
+                    sightings = i.observations,
+                    best = ?vocabulary.and_then(|v| v.hypotheses(&i.prototype, 1).pop()),
+                    "not listed: structure, or a small piece seen once or named unsurely"
+                );
+            }
+            (listed || tentative).then_some((i, tentative))
+        })
+        .filter_map(|(i, tentative)| {
             // Longer than any object of the vocabulary could be: no object (a room-sized
             // instance named "sink" was listed on benchmark 9604).
             let length = i.length_m();
             if vocabulary.is_some_and(|v| v.admits_no_object(length)) {
+                tracing::debug!(instance = %i.id, length, "not listed: longer than any object");
                 return None;
             }
             // Named once: three completions, the published hypotheses and referring read these
@@ -95,6 +133,7 @@ pub fn object_list<'a>(
                     instance: i,
                     bbox: standing_on_floor(b, stands, &walls, map, vocabulary),
                     names,
+                    tentative,
                 }
             })
         })
@@ -110,6 +149,9 @@ pub struct Listed<'a> {
     /// p(name) for every phrase of the vocabulary, in its order ([`Instance::name_probabilities`];
     /// empty without a vocabulary).
     pub names: Vec<f32>,
+    /// A tentative candidate for queries, not in the published list
+    /// ([`object_list_with_tentative`]).
+    pub tentative: bool,
 }
 
 /// Whether `completed` is the vertical face `surface` completed behind it (back to a wall or

@@ -158,6 +158,7 @@ mod tests {
             visibility: 0.0,
             confidence: 0.5,
             gaussians: 0,
+            tentative: false,
         };
         assert_eq!(nothing.score(&unnamed), 0.0);
         // A vocabulary of only `other`: no weight anywhere, finite.

@@ -73,6 +73,8 @@ pub fn structured(scene: &ReferScene, answer: &Answer) -> serde_json::Value {
                 "volume_m3": size.x * size.y * size.z,
                 "colour": color_name(node.color),
                 "visibility": node.visibility,
+                // One window saw it; the map has not confirmed it (ReferNode::tentative).
+                "tentative": node.tentative,
                 "scores": {"semantic": c.semantic, "geometric": c.geometric, "visibility": c.visibility, "combined": c.score},
                 "neighbours": neighbours.iter().take(3).map(|(d, n)| json!({
                     "id": n.id, "name": n.label, "distance_m": d,

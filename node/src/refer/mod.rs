@@ -276,6 +276,8 @@ pub fn answer_query(
             request.max_targets,
         )?,
     };
+    let mut decision = decision;
+    decision.note = with_tentative_note(scene, &decision.chosen, decision.note);
     let nearest = target
         .nearest_phrase(scene)
         .map(|(p, w)| format!("{:?} reads as {p:?} ({w:.2}); ", query.target))
@@ -307,6 +309,32 @@ pub fn answer_query(
         trace,
         view: query.view_dependent().then_some(view).flatten(),
         query,
+    })
+}
+
+/// `note`, with a line naming the chosen instances that are tentative candidates (one window saw
+/// them; [`scene::ReferNode::tentative`]): the asker should know the map has not confirmed them.
+fn with_tentative_note(
+    scene: &ReferScene,
+    chosen: &[reasoner::Choice],
+    note: Option<String>,
+) -> Option<String> {
+    let tentative: Vec<&str> = chosen
+        .iter()
+        .map(|c| &scene.nodes[c.index])
+        .filter(|n| n.tentative)
+        .map(|n| n.id.as_str())
+        .collect();
+    if tentative.is_empty() {
+        return note;
+    }
+    let line = format!(
+        "{} seen by one window only, not yet confirmed",
+        tentative.join(", ")
+    );
+    Some(match note {
+        Some(note) => format!("{note}; {line}"),
+        None => line,
     })
 }
 

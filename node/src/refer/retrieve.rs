@@ -165,17 +165,33 @@ pub fn color_distance(observed: [f32; 3], named: DVec3) -> f64 {
     (o * scale - named).length()
 }
 
+/// Every node's score for `concept` ([`Concept::score`]), the tentative ones' zero where some
+/// listed node fits it (at least [`MIN_SEMANTIC`]): a lamp one window saw answers "the lamp"
+/// while the map lists none, and never competes with the lamps it lists.
+pub fn semantic_scores(scene: &ReferScene, concept: &Concept) -> Vec<f32> {
+    let scores: Vec<f32> = scene.nodes.iter().map(|n| concept.score(n)).collect();
+    let listed_fits = scene
+        .nodes
+        .iter()
+        .zip(&scores)
+        .any(|(n, s)| !n.tentative && *s >= MIN_SEMANTIC);
+    scene
+        .nodes
+        .iter()
+        .zip(scores)
+        .map(|(n, s)| if n.tentative && listed_fits { 0.0 } else { s })
+        .collect()
+}
+
 /// Anchor instances per anchor concept, best first: those that fit the concept at all and score
 /// at least half the best.
 pub fn anchor_lists(scene: &ReferScene, anchors: &[Concept]) -> Vec<AnchorList> {
     anchors
         .iter()
         .map(|concept| {
-            let mut list: AnchorList = scene
-                .nodes
-                .iter()
+            let mut list: AnchorList = semantic_scores(scene, concept)
+                .into_iter()
                 .enumerate()
-                .map(|(i, n)| (i, concept.score(n)))
                 .collect();
             list.sort_by(|a, b| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0)));
             let best = list.first().map_or(0.0, |a| a.1);
@@ -197,7 +213,7 @@ pub fn retrieve(
     k: usize,
 ) -> Retrieval {
     let geometries = geometries(scene);
-    let semantic: Vec<f32> = scene.nodes.iter().map(|n| target.score(n)).collect();
+    let semantic = semantic_scores(scene, target);
     let best_semantic = semantic.iter().copied().fold(0.0, f32::max);
     // Superlatives rank among the instances that fit the concept.
     let peers: Vec<usize> = (0..scene.nodes.len())

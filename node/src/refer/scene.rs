@@ -10,7 +10,7 @@ use std::sync::Arc;
 use glam::DVec3;
 
 use crate::frame::{Keyframe, MeasuredDepth};
-use crate::graph::listing::object_list;
+use crate::graph::listing::object_list_with_tentative;
 use crate::graph::{GraphError, SceneGraph, SceneMap};
 use crate::group::semantics::Vocabulary;
 use crate::observations::Observations;
@@ -45,6 +45,10 @@ pub struct ReferNode {
     pub visibility: f32,
     pub confidence: f32,
     pub gaussians: usize,
+    /// A tentative candidate, not in the published object list (a small piece named surely that
+    /// one window saw, [`crate::group::semantics::Vocabulary::is_tentative`]): a query answers it
+    /// only where no listed instance fits.
+    pub tentative: bool,
 }
 
 impl ReferNode {
@@ -133,19 +137,20 @@ impl ReferScene {
                 (r.depth, labels)
             })
             .unzip();
-        let mut listed: HashMap<String, (OrientedBox, Vec<f32>)> =
-            object_list(&map, vocabulary, |i, box_like| {
+        let mut listed: HashMap<String, (OrientedBox, Vec<f32>, bool)> =
+            object_list_with_tentative(&map, vocabulary, |i, box_like| {
                 boxes
                     .get(&i.id)
                     .map_or_else(|| i.fitted(box_like), |b| (*b).into())
             })
             .into_iter()
-            .map(|l| (l.instance.id.clone(), (l.bbox, l.names)))
+            .map(|l| (l.instance.id.clone(), (l.bbox, l.names, l.tentative)))
             .collect();
         let mut nodes = Vec::new();
         for (instance, node) in map.instances.iter().zip(&graph.nodes) {
-            // What the object list leaves out (structure, small unsure pieces) is no candidate.
-            let Some((bbox, names)) = listed.remove(&instance.id) else {
+            // What the object list leaves out (structure, small unsure pieces) is no candidate,
+            // unless it is a tentative one.
+            let Some((bbox, names, tentative)) = listed.remove(&instance.id) else {
                 continue;
             };
             let best = names
@@ -176,6 +181,7 @@ impl ReferScene {
                 visibility: node.views.iter().map(|v| v.visibility).fold(0.0, f32::max),
                 confidence: instance.confidence,
                 gaussians: instance.gaussians.len(),
+                tentative,
             });
         }
         Ok(Self {

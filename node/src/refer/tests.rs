@@ -65,6 +65,7 @@ fn node(id: usize, class: &str, lo: [f64; 3], hi: [f64; 3], color: [f32; 3]) -> 
         visibility: 1.0,
         confidence: 1.0,
         gaussians: 100,
+        tentative: false,
     }
 }
 
@@ -363,6 +364,54 @@ fn a_target_the_map_does_not_hold_is_refused_saying_what_was_not_seen() {
     );
     let message = got.map(|_| ()).unwrap_err().to_string();
     assert!(message.contains("no lamp has been seen"), "{message}");
+}
+
+#[test]
+fn a_tentative_candidate_answers_only_where_no_listed_instance_fits_and_says_so() {
+    // The lamp on table 1 was grouped and named by one window only: tentative.
+    let mut scene = room();
+    scene
+        .nodes
+        .iter_mut()
+        .filter(|n| n.label == "lamp")
+        .for_each(|n| n.tentative = true);
+    let got = ask(&scene, "the lamp").unwrap();
+    assert_eq!(ids(&got, &scene), ["inst_000003"], "{}", got.trace);
+    let note = got.note.clone().unwrap_or_default();
+    assert!(
+        note.contains("inst_000003 seen by one window only"),
+        "{note}"
+    );
+    // As an anchor too.
+    let got = ask(&scene, "the chair closest to the lamp").unwrap();
+    assert_eq!(ids(&got, &scene), ["inst_000005"], "{}", got.trace);
+    // A listed lamp (on table 2) is the lamp: the tentative one neither competes with it nor
+    // counts among "all the lamps".
+    scene
+        .nodes
+        .push(node(10, "lamp", [3.5, -0.1, 0.75], [3.7, 0.1, 1.2], BROWN));
+    for expression in ["the lamp", "all the lamps", "the lamp closest to the chair"] {
+        let got = ask(&scene, expression).unwrap();
+        assert_eq!(
+            ids(&got, &scene),
+            ["inst_000010"],
+            "{expression}: {}",
+            got.trace
+        );
+        assert!(got.note.is_none_or(|n| !n.contains("one window")));
+    }
+    // A tentative box beside two listed ones is no third box.
+    scene
+        .nodes
+        .push(node(11, "box", [2.5, 2.5, 0.0], [2.7, 2.7, 0.2], BROWN));
+    scene.nodes.last_mut().unwrap().tentative = true;
+    let got = ask(&scene, "all the boxes").unwrap();
+    assert_eq!(
+        ids(&got, &scene),
+        ["inst_000004", "inst_000008"],
+        "{}",
+        got.trace
+    );
 }
 
 #[test]
