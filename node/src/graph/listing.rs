@@ -52,8 +52,9 @@ pub fn object_list<'a>(
 }
 
 /// [`object_list`] with the tentative candidates queries may also answer
-/// ([`Vocabulary::is_tentative`]: small pieces named surely that one window saw), marked
-/// [`Listed::tentative`].
+/// ([`Vocabulary::is_tentative`]: small pieces the list holds back, seen by one window or named
+/// unsurely, whose best name scores at least [`crate::group::semantics::TENTATIVE_NAME`]),
+/// marked [`Listed::tentative`].
 pub fn object_list_with_tentative<'a>(
     map: &'a SceneMap,
     vocabulary: Option<&Vocabulary>,

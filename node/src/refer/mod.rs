@@ -266,7 +266,7 @@ pub fn answer_query(
         view.as_ref(),
         section.top_k,
     );
-    let decision = match unresolved {
+    let mut decision = match unresolved {
         Some(refusal) => reasoner::without_anchor(scene, &query, &retrieval, refusal)?,
         None => reasoner::reason(
             scene,
@@ -276,7 +276,6 @@ pub fn answer_query(
             request.max_targets,
         )?,
     };
-    let mut decision = decision;
     decision.note = with_tentative_note(scene, &decision.chosen, decision.note);
     let nearest = target
         .nearest_phrase(scene)
@@ -312,8 +311,9 @@ pub fn answer_query(
     })
 }
 
-/// `note`, with a line naming the chosen instances that are tentative candidates (one window saw
-/// them; [`scene::ReferNode::tentative`]): the asker should know the map has not confirmed them.
+/// `note`, with a line naming the chosen instances that are tentative candidates (small pieces
+/// seen by one window or named unsurely; [`scene::ReferNode::tentative`]): the asker should know
+/// the map has not confirmed them.
 fn with_tentative_note(
     scene: &ReferScene,
     chosen: &[reasoner::Choice],
@@ -329,7 +329,7 @@ fn with_tentative_note(
         return note;
     }
     let line = format!(
-        "{} seen by one window only, not yet confirmed",
+        "{} not yet confirmed (small, seen by one window or named unsurely)",
         tentative.join(", ")
     );
     Some(match note {

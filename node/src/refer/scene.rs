@@ -45,9 +45,9 @@ pub struct ReferNode {
     pub visibility: f32,
     pub confidence: f32,
     pub gaussians: usize,
-    /// A tentative candidate, not in the published object list (a small piece named surely that
-    /// one window saw, [`crate::group::semantics::Vocabulary::is_tentative`]): a query answers it
-    /// only where no listed instance fits.
+    /// A tentative candidate, not in the published object list (a small piece seen by one window
+    /// or named unsurely, [`crate::group::semantics::Vocabulary::is_tentative`]): a query answers
+    /// it only where no listed instance fits.
     pub tentative: bool,
 }
 
