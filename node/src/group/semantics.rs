@@ -58,13 +58,13 @@ pub const MIN_SMALL_SIGHTINGS: u32 = 2;
 
 /// A small instance the object list holds back (seen by one window, or named less surely than
 /// [`CONFIDENT_NAME`]) whose best name scores at least this is a tentative candidate for queries
-/// ([`Vocabulary::is_tentative`]): a lamp on a table that one window grouped and named and no
-/// other window saw. Chosen on benchmark 7000-7019 / 8000-8019 `eval refer` among 0.3, 0.5, 0.7,
-/// 0.85 and 0.95 (selection accuracy 68.9 / 69.0 / 69.1 / 67.0 / 66.2% and 79.4 / 79.4 / 78.7 /
-/// 77.6 / 77.3%; without: 64.0 and 77.3%; `realistic` 7000-7019 / 9800-9819 at 0.5 and 0.85:
-/// 64.0 / 63.4% and 64.0 / 63.2%, without 61.9 / 61.5%): a name the features barely prefer is
-/// still the best guess where nothing listed fits, and 0.3 answered one more never-observed
-/// target.
+/// ([`Vocabulary::is_tentative`]): a lamp on a table that one window grouped and named and no other
+/// window saw. Chosen on benchmark 7000-7019 / 8000-8019 `eval refer` among 0.3, 0.5, 0.7, 0.85 and
+/// 0.95 (selection accuracy 68.9 / 69.0 / 69.1 / 67.0 / 66.2% and 79.4 / 79.4 / 78.7 / 77.6 /
+/// 77.3%; without: 64.0 and 77.3%; `realistic` 7000-7019 / 9800-9819 at 0.5 and 0.85: 64.0 / 63.4%
+/// and 64.0 / 63.2%, without 61.9 / 61.5%; all before a tentative candidate had to be named as the
+/// phrase asks, [`crate::refer::retrieve::semantic_scores`]): a name the features barely prefer is
+/// still the best guess where nothing listed fits, and 0.3 answered one more never-observed target.
 pub const TENTATIVE_NAME: f32 = 0.5;
 
 impl SemanticsSection {

@@ -166,8 +166,9 @@ pub fn color_distance(observed: [f32; 3], named: DVec3) -> f64 {
 }
 
 /// Every node's score for `concept` ([`Concept::score`]), the tentative ones' zero where some
-/// listed node fits it (at least [`MIN_SEMANTIC`]): a lamp one window saw answers "the lamp"
-/// while the map lists none, and never competes with the lamps it lists.
+/// listed node fits it (at least [`MIN_SEMANTIC`]) or where the concept's phrase is not their
+/// best name: a lamp one window saw answers "the lamp" while the map lists none, never competes
+/// with the lamps it lists, and never answers "the sink" for the trace of sink in its names.
 pub fn semantic_scores(scene: &ReferScene, concept: &Concept) -> Vec<f32> {
     let scores: Vec<f32> = scene.nodes.iter().map(|n| concept.score(n)).collect();
     let listed_fits = scene
@@ -175,11 +176,18 @@ pub fn semantic_scores(scene: &ReferScene, concept: &Concept) -> Vec<f32> {
         .iter()
         .zip(&scores)
         .any(|(n, s)| !n.tentative && *s >= MIN_SEMANTIC);
+    let phrase = concept.nearest_phrase(scene).map(|(p, _)| p);
     scene
         .nodes
         .iter()
         .zip(scores)
-        .map(|(n, s)| if n.tentative && listed_fits { 0.0 } else { s })
+        .map(|(n, s)| {
+            if n.tentative && (listed_fits || phrase != Some(n.label.as_str())) {
+                0.0
+            } else {
+                s
+            }
+        })
         .collect()
 }
 

@@ -379,6 +379,14 @@ fn a_tentative_candidate_answers_only_where_no_listed_instance_fits_and_says_so(
     assert_eq!(ids(&got, &scene), ["inst_000003"], "{}", got.trace);
     let note = got.note.clone().unwrap_or_default();
     assert!(note.contains("inst_000003 not yet confirmed"), "{note}");
+    // Only for what it is named: a trace of sofa in its names answers no "sofa" (none listed).
+    let lamp = scene.nodes.iter_mut().find(|n| n.label == "lamp").unwrap();
+    lamp.names = vec![0.0, 0.0, 0.7, 0.0, 0.0, 0.3, 0.0];
+    let got = ask(&scene, "the sofa");
+    assert!(
+        matches!(&got, Err(ReferError::Reason(ReasonError::NoTarget(_)))),
+        "{got:?}"
+    );
     // As an anchor too.
     let got = ask(&scene, "the chair closest to the lamp").unwrap();
     assert_eq!(ids(&got, &scene), ["inst_000005"], "{}", got.trace);
