@@ -8,7 +8,7 @@
 use super::instance::Fitted;
 use super::walls::{is_low, is_thin, Walls};
 use super::{amodal, Instance, SceneMap};
-use crate::group::semantics::{ClassPriors, Vocabulary};
+use crate::group::semantics::{ClassPriors, Standing, Vocabulary};
 use crate::recon::boxes::OrientedBox;
 
 /// The box an instance publishes: `fitted`, completed when it is a surface seen from one side
@@ -77,13 +77,11 @@ fn list<'a>(
     map.instances
         .iter()
         .filter_map(|i| {
-            let listed = vocabulary
-                .is_none_or(|v| v.is_listed(&i.prototype, i.gaussians.len(), i.observations));
-            let tentative = !listed
-                && with_tentative
-                && vocabulary.is_some_and(|v| {
-                    v.is_tentative(&i.prototype, i.gaussians.len(), i.observations)
-                });
+            let standing = vocabulary.map_or(Standing::Listed, |v| {
+                v.standing(&i.prototype, i.gaussians.len(), i.observations)
+            });
+            let listed = standing == Standing::Listed;
+            let tentative = with_tentative && standing == Standing::Tentative;
             if !listed && !tentative {
                 tracing::debug!(
                     instance = %i.id,

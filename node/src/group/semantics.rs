@@ -274,32 +274,50 @@ pub struct Vocabulary {
     pub priors: ClassPriors,
 }
 
+/// Where an instance stands with the object list ([`Vocabulary::standing`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Standing {
+    /// Published, scored, referred to.
+    Listed,
+    /// Not published; queries may answer it where no listed instance fits.
+    Tentative,
+    /// Neither: structure, or a small piece named vaguely.
+    Left,
+}
+
 impl Vocabulary {
-    /// Whether an instance with `prototype`, `gaussians` Gaussians and seen by `sightings` windows
-    /// is in the object list: not structure (walls, floor, ceiling: the semantic model's `other`
-    /// class, which stays in the map), and either large enough or confidently named and seen
-    /// again ([`MIN_LISTED_GAUSSIANS`]).
-    pub fn is_listed(&self, prototype: &[f32], gaussians: usize, sightings: u32) -> bool {
-        match self.hypotheses(prototype, 1).first() {
-            Some((phrase, _)) if phrase == OTHER_PHRASE => false,
-            Some((_, score)) => {
-                gaussians >= MIN_LISTED_GAUSSIANS
-                    || (*score >= CONFIDENT_NAME && sightings >= MIN_SMALL_SIGHTINGS)
-            }
-            None => true,
+    /// Where an instance with `prototype`, `gaussians` Gaussians and seen by `sightings` windows
+    /// stands: in the object list when not structure (walls, floor, ceiling: the semantic model's
+    /// `other` class, which stays in the map) and either large enough or confidently named and
+    /// seen again ([`MIN_LISTED_GAUSSIANS`]); else a tentative candidate for queries when not
+    /// structure and named at least [`TENTATIVE_NAME`]. Names it once (a cosine with every phrase).
+    pub fn standing(&self, prototype: &[f32], gaussians: usize, sightings: u32) -> Standing {
+        let Some((phrase, score)) = self.hypotheses(prototype, 1).pop() else {
+            return Standing::Listed;
+        };
+        if phrase == OTHER_PHRASE {
+            Standing::Left
+        } else if gaussians >= MIN_LISTED_GAUSSIANS
+            || (score >= CONFIDENT_NAME && sightings >= MIN_SMALL_SIGHTINGS)
+        {
+            Standing::Listed
+        } else if score >= TENTATIVE_NAME {
+            Standing::Tentative
+        } else {
+            Standing::Left
         }
     }
 
-    /// Whether an instance the object list leaves out ([`Vocabulary::is_listed`]) is a tentative
-    /// candidate for queries: small, not structure, and named at least [`TENTATIVE_NAME`]. A
+    /// Whether the instance is in the object list ([`Vocabulary::standing`]).
+    pub fn is_listed(&self, prototype: &[f32], gaussians: usize, sightings: u32) -> bool {
+        self.standing(prototype, gaussians, sightings) == Standing::Listed
+    }
+
+    /// Whether the instance is a tentative candidate for queries ([`Vocabulary::standing`]): a
     /// query answers it only where no listed instance fits ([`crate::refer`]); the published
     /// object list never holds it.
     pub fn is_tentative(&self, prototype: &[f32], gaussians: usize, sightings: u32) -> bool {
-        !self.is_listed(prototype, gaussians, sightings)
-            && self
-                .hypotheses(prototype, 1)
-                .first()
-                .is_some_and(|(phrase, score)| phrase != OTHER_PHRASE && *score >= TENTATIVE_NAME)
+        self.standing(prototype, gaussians, sightings) == Standing::Tentative
     }
 
     /// Whether nothing the vocabulary names could be `length_m` long (its longer horizontal
