@@ -183,8 +183,25 @@ pub fn find_library(configured: Option<&Path>) -> Result<PathBuf> {
     })
 }
 
+/// Why loading ONNX Runtime failed, kept by the process's one attempt so that every later call
+/// reports it as it happened (a missing library as missing, not as a load failure of "").
+#[derive(Debug, Clone)]
+enum RuntimeFailure {
+    NotFound { searched: String },
+    Load { path: PathBuf, reason: String },
+}
+
+impl From<&RuntimeFailure> for ModelError {
+    fn from(failure: &RuntimeFailure) -> Self {
+        match failure.clone() {
+            RuntimeFailure::NotFound { searched } => ModelError::LibraryNotFound { searched },
+            RuntimeFailure::Load { path, reason } => ModelError::LibraryLoad { path, reason },
+        }
+    }
+}
+
 static ENVIRONMENT: OnceLock<
-    std::result::Result<(PathBuf, ort::environment::Environment), String>,
+    std::result::Result<(PathBuf, ort::environment::Environment), RuntimeFailure>,
 > = OnceLock::new();
 
 /// Load ONNX Runtime and create its environment, once per process (later calls return the first
@@ -195,13 +212,16 @@ pub fn init_runtime(configured: Option<&Path>) -> Result<PathBuf> {
 
 fn runtime(configured: Option<&Path>) -> Result<&'static (PathBuf, ort::environment::Environment)> {
     let outcome = ENVIRONMENT.get_or_init(|| {
-        let path = find_library(configured).map_err(|e| e.to_string())?;
-        let load_error = |reason: String| {
-            ModelError::LibraryLoad {
-                path: path.clone(),
-                reason,
-            }
-            .to_string()
+        let path = find_library(configured).map_err(|e| match e {
+            ModelError::LibraryNotFound { searched } => RuntimeFailure::NotFound { searched },
+            other => RuntimeFailure::Load {
+                path: PathBuf::new(),
+                reason: other.to_string(),
+            },
+        })?;
+        let load_error = |reason: String| RuntimeFailure::Load {
+            path: path.clone(),
+            reason,
         };
         let builder = ort::init_from(&path).map_err(|e| load_error(e.to_string()))?;
         let environment = builder
@@ -210,10 +230,7 @@ fn runtime(configured: Option<&Path>) -> Result<&'static (PathBuf, ort::environm
             .map_err(|e| load_error(e.to_string()))?;
         Ok((path, environment))
     });
-    outcome.as_ref().map_err(|reason| ModelError::LibraryLoad {
-        path: configured.map(Path::to_owned).unwrap_or_default(),
-        reason: reason.clone(),
-    })
+    outcome.as_ref().map_err(ModelError::from)
 }
 
 /// Execution provider by name; `cpu` always works, others must be present in the loaded library.
