@@ -85,5 +85,6 @@ def node_grouping(embeddings, grouping=GROUPING, residual=RESIDUAL):
         counts = np.bincount(more[more >= 0], minlength=len(extra))
         kept = counts >= size
         renamed = np.where(kept, len(centroids) + np.cumsum(kept) - 1, -1)
-        labels[noise] = np.where(more >= 0, renamed[np.maximum(more, 0)], -1)
+        # With no residual cluster at all `renamed` is empty: the noise stays noise.
+        labels[noise] = np.where(more >= 0, renamed[np.maximum(more, 0)], -1) if len(renamed) else -1
     return labels, raw, sample
