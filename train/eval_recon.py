@@ -6,7 +6,8 @@ min_samples 10, single cluster allowed) on an even-stride subsample of at most 2
 centroids lie within 0.4 joined (closest pair first), then every pixel assigned to its nearest
 cluster centroid, or noise when that centroid is farther than 0.7. `--grouping 60,10,0.5,0` scores
 another setting (min_cluster_size, min_samples, noise distance, merge distance; the node's default
-before this one).
+before this one). Not mirrored: the node's split of an instance by the model's centre votes
+(node/src/group/votes.rs), so these figures are the embeddings' grouping alone.
 Scored with ARI against the ground-truth instances (walls and floor = one instance; noise is its
 own label), the mean over windows with its standard error (`ari_se`). `ari_hdbscan` is HDBSCAN's own
 labels on the subsample (noise unassigned), for reference.

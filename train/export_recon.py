@@ -26,6 +26,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from gf.cpu_graph import rewrite_file_for_cpu  # noqa: E402
+from add_vote_output import MANIFEST_OUTPUT, add_votes  # noqa: E402
 from gf.data import POINTS_SCALE  # noqa: E402
 from gf.model import example_inputs, onnx_parity, parameter_count  # noqa: E402
 from gf.recover import model_from_file  # noqa: E402
@@ -222,6 +223,7 @@ def main():
                       output_names=['depth', 'gaussians', 'embeddings'], dynamic_axes=dynamic, opset_version=17,
                       dynamo=False)
     rewrite = rewrite_file_for_cpu(onnx_path)
+    votes = bool(getattr(model, 'centre_votes', False)) and add_votes(onnx_path)
     session = ort.InferenceSession(str(onnx_path), providers=['CPUExecutionProvider'])
     assert [i.name for i in session.get_inputs()] == names, session.get_inputs()
     worst = max(onnx_parity(model, session, arguments(views)) for views in (2, 4))
@@ -272,6 +274,8 @@ shape = [1, "V", 11, "H", "W"]
 name = "embeddings"
 shape = [1, "V", 8, "H", "W"]
 '''
+    if votes:
+        manifest += MANIFEST_OUTPUT
     manifest += benchmarks_section(report, size, parameter_count(model))
     (MODELS / f'{args.name}.toml').write_text(manifest)
     print(f'wrote {onnx_path} ({size / 1e6:.1f} MB) and its manifest; parity {worst:.2e}')

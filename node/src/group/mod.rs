@@ -28,6 +28,7 @@ pub mod cleaning;
 pub mod hdbscan;
 pub mod semantics;
 pub mod vocabulary;
+pub mod votes;
 
 use hdbscan::{Clustering, HdbscanError, HdbscanParams};
 
@@ -59,6 +60,9 @@ pub struct GroupingParams {
     /// A second HDBSCAN over the embeddings the first left as noise (the default runs it;
     /// `None`: the first pass alone). See the module notes.
     pub residual: Option<ResidualPass>,
+    /// Split instances whose centre votes form separate clumps (a model with a `votes` output;
+    /// `None`: never). See [`votes`].
+    pub vote_split: Option<votes::VoteSplit>,
 }
 
 /// The residual pass: HDBSCAN with `density` over the first pass's noise; each of its clusters
@@ -108,6 +112,7 @@ impl Default for GroupingParams {
             // Well under the push margin (m = 1) that separates trained instances.
             merge_distance: 0.4,
             residual: Some(ResidualPass::default()),
+            vote_split: Some(votes::VoteSplit::default()),
         }
     }
 }

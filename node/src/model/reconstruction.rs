@@ -79,6 +79,38 @@ pub struct Prediction {
     pub gaussians: Vec<f32>,
     pub embeddings: Vec<f32>,
     pub pose_enc: Option<Vec<f32>>,
+    /// The instance head's centre votes, where the model has the output (RGB-D).
+    pub votes: Option<Votes>,
+}
+
+/// Per pixel of a coarser grid, a vote for the centre of the pixel's object, in the model's
+/// units (world metres centred on the window's mean camera centre, divided by `points_scale`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Votes {
+    pub height: usize,
+    pub width: usize,
+    /// [V,3,height,width], channel-planar per view.
+    pub data: Vec<f32>,
+}
+
+impl Votes {
+    /// The vote of pixel `pixel` (flat over [V,H,W] at the model's resolution `width × height`),
+    /// from the vote grid's cell holding it (nearest, as training upsamples it).
+    pub fn at(&self, pixel: usize, width: usize, height: usize) -> Option<[f32; 3]> {
+        let plane = width * height;
+        if plane == 0 {
+            return None;
+        }
+        let (view, i) = (pixel / plane, pixel % plane);
+        let (x, y) = (i % width, i / width);
+        let (vx, vy) = (x * self.width / width, y * self.height / height);
+        let cells = self.width * self.height;
+        let base = view * 3 * cells + vy * self.width + vx;
+        Some(
+            std::array::from_fn(|c| self.data.get(base + c * cells).copied())
+                .map(|v| v.unwrap_or(f32::NAN)),
+        )
+    }
 }
 
 /// A loaded reconstruction model.
@@ -548,6 +580,28 @@ impl ReconstructionModel {
             Some(value) => Some(value.try_extract_tensor::<f32>()?.1.to_vec()),
             None => None,
         };
+        let votes = match outputs.get("votes") {
+            Some(value) => {
+                let (shape, data) = value.try_extract_tensor::<f32>()?;
+                let dims: Vec<i64> = shape.iter().copied().collect();
+                match dims[..] {
+                    [1, v, 3, h, w] if v == views as i64 && h > 0 && w > 0 => Some(Votes {
+                        height: h as usize,
+                        width: w as usize,
+                        data: data.to_vec(),
+                    }),
+                    _ => {
+                        return Err(ModelError::ContractMismatch {
+                            model: "votes".to_owned(),
+                            problems: vec![format!(
+                                "output `votes` has shape {dims:?}, expected [1, {views}, 3, h, w]"
+                            )],
+                        })
+                    }
+                }
+            }
+            None => None,
+        };
         Ok(Prediction {
             views,
             height,
@@ -557,6 +611,7 @@ impl ReconstructionModel {
             gaussians,
             embeddings,
             pose_enc,
+            votes,
         })
     }
 
@@ -797,6 +852,7 @@ mod tests {
             gaussians: Vec::new(),
             embeddings: Vec::new(),
             pose_enc: None,
+            votes: None,
         };
         let from_neighbours = use_sensor_depth(&mut prediction, &[view]);
         (prediction.depth, from_neighbours)

@@ -26,10 +26,11 @@ use crate::group::cleaning::{
     CleaningParams,
 };
 use crate::group::semantics::{Vocabulary, OTHER_PHRASE};
+use crate::group::votes::split_by_votes;
 use crate::group::{group, GroupError, GroupingParams};
 use crate::model::manifest::InputMode;
 use crate::model::reconstruction::{
-    lifted_pixels, resized_camera, use_sensor_depth, Prediction, ReconstructionModel, View,
+    lifted_pixels, resized_camera, use_sensor_depth, Prediction, ReconstructionModel, View, Votes,
 };
 use crate::model::semantic::SemanticModel;
 use crate::model::ModelError;
@@ -230,15 +231,25 @@ pub fn pass_with_cache(
             times,
         });
     }
+    let pixels = lifted_pixels(&prediction);
     let grouped = times.time(Stage::Group, || {
-        group(
+        let mut grouped = group(
             &gaussians.embeddings,
             gaussians.embedding_dim.max(1),
             grouping,
-        )
+        )?;
+        if let (Some(split), Some(votes)) = (&grouping.vote_split, &prediction.votes) {
+            let scale = model
+                .manifest
+                .normalization
+                .as_ref()
+                .map_or(1.0, |n| n.points_scale);
+            let votes = gaussian_votes(votes, &pixels, &prediction, scale);
+            split_by_votes(&mut grouped.labels, &votes, split);
+        }
+        Ok::<_, GroupError>(grouped)
     })?;
     let clean_started = std::time::Instant::now();
-    let pixels = lifted_pixels(&prediction);
     let cleaned = clean(grouped.labels, &gaussians, &prediction, &pixels, frames);
     times.0.push((Stage::Clean, clean_started.elapsed()));
     let semantics_started = std::time::Instant::now();
@@ -365,6 +376,24 @@ struct Cleaned {
 
 /// Map hygiene: no flying pixels or transparent Gaussians in objects, a cluster that falls apart
 /// in space becomes its parts, and the floor around an object's foot leaves it.
+/// Each lifted point's centre vote in metres (the model's units times `points_scale`; the
+/// centring offset is common to all and drops out of distances).
+fn gaussian_votes(
+    votes: &Votes,
+    pixels: &[usize],
+    prediction: &Prediction,
+    points_scale: f32,
+) -> Vec<glam::Vec3> {
+    pixels
+        .iter()
+        .map(|&p| {
+            votes
+                .at(p, prediction.width, prediction.height)
+                .map_or(glam::Vec3::NAN, |v| glam::Vec3::from(v) * points_scale)
+        })
+        .collect()
+}
+
 fn clean(
     mut labels: Vec<i32>,
     gaussians: &Gaussians,

@@ -1,0 +1,47 @@
+"""add_vote_output: an exported RGB-D model gains the output `votes`, equal to the PyTorch model's
+centre votes, while its other outputs stay bit-identical (`make train-test`)."""
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from add_vote_output import add_votes  # noqa: E402
+from gf.grouping import node_grouping  # noqa: E402
+from gf.model import GroupForwardMini, cpu_session  # noqa: E402
+from test_guided_upsampling import export, trained_like  # noqa: E402
+
+
+def test_the_votes_output_matches_the_model_and_leaves_the_rest_alone(tmp_path):
+    torch.manual_seed(2)
+    model = trained_like(GroupForwardMini(mode='rgbd', room_gate=True))
+    path = tmp_path / 'model.onnx'
+    export(model, path)
+    images, points = torch.rand(1, 2, 3, 96, 128), torch.randn(1, 2, 3, 96, 128) * 0.5
+    feed = {'images': images.numpy(), 'points': points.numpy()}
+    before = cpu_session(path, 1).run(['depth', 'gaussians', 'embeddings'], feed)
+    assert add_votes(path)
+    assert not add_votes(path), 'a second call adds nothing'
+    after = cpu_session(path, 1).run(['depth', 'gaussians', 'embeddings', 'votes'], feed)
+    for a, b in zip(before, after[:3]):
+        np.testing.assert_array_equal(a, b)
+    with torch.no_grad():
+        votes = model.forward_with_votes(images, points)[3]
+    assert after[3].shape == (1, 2, 3, 48, 64)
+    np.testing.assert_allclose(after[3], votes.numpy(), atol=1e-4 * float(np.abs(votes.numpy()).max()))
+
+
+def test_the_residual_pass_finding_nothing_leaves_the_noise_as_noise():
+    # Two tight clusters and a few scattered points: the residual pass finds no cluster among them
+    # (it indexed an empty array before).
+    rng = np.random.default_rng(0)
+    a = rng.normal([1, 0, 0], 0.01, (200, 3))
+    b = rng.normal([0, 1, 0], 0.01, (200, 3))
+    scattered = rng.normal(0, 1, (5, 3))
+    e = np.concatenate([a, b, scattered]).astype(np.float32)
+    e /= np.linalg.norm(e, axis=1, keepdims=True)
+    labels, _, _ = node_grouping(e)
+    assert labels.shape == (405,)
+    assert len(set(labels[:200])) == 1 and len(set(labels[200:400])) == 1
