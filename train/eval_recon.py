@@ -6,8 +6,9 @@ min_samples 10, single cluster allowed) on an even-stride subsample of at most 2
 centroids lie within 0.4 joined (closest pair first), then every pixel assigned to its nearest
 cluster centroid, or noise when that centroid is farther than 0.7. `--grouping 60,10,0.5,0` scores
 another setting (min_cluster_size, min_samples, noise distance, merge distance; the node's default
-before this one). Not mirrored: the node's split of an instance by the model's centre votes
-(node/src/group/votes.rs), so these figures are the embeddings' grouping alone.
+before this one). `--vote-split` adds the node's split of an instance by the model's centre votes
+(node/src/group/votes.rs, on by default in the node; gf.grouping.vote_split), for models with votes:
+without it these figures are the embeddings' grouping alone.
 Scored with ARI against the ground-truth instances (walls and floor = one instance; noise is its
 own label), the mean over windows with its standard error (`ari_se`). `ari_hdbscan` is HDBSCAN's own
 labels on the subsample (noise unassigned), for reference.
@@ -56,7 +57,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from gf.data import SimDataset  # noqa: E402
 from gf.model import batch_inputs, cpu_session  # noqa: E402
 from gf.recover import model_from_file  # noqa: E402
-from gf.grouping import GROUPING, node_grouping, unit_centroids  # noqa: E402
+from gf.grouping import GROUPING, node_grouping, unit_centroids, vote_split  # noqa: E402
+from gf.model import POINTS_SCALE  # noqa: E402
 
 PAIR_GAP = 0.15
 MIN_OBJECT_PIXELS = 50  # an object counts as seen in a window (pairs, objects found)
@@ -121,7 +123,15 @@ def objects_found(truth, labels, min_pixels=MIN_OBJECT_PIXELS):
 
 
 @torch.no_grad()
-def evaluate(model, dataset, indices=None, grouping=GROUPING, swap_poses=False, per_window=None):
+def pixel_votes(votes, height, width):
+    """Per pixel (view-major, [V*H*W, 3]) the vote of its cell in the half-resolution `votes` [V,3,h,w],
+    in metres (nearest, as the node reads it)."""
+    v = torch.nn.functional.interpolate(votes, size=(height, width), mode='nearest')
+    return v.permute(0, 2, 3, 1).reshape(-1, 3).numpy() * POINTS_SCALE
+
+
+def evaluate(model, dataset, indices=None, grouping=GROUPING, swap_poses=False, per_window=None,
+             with_vote_split=False):
     """The metrics above over the windows `indices`; `swap_poses` gives every view the previous view's pose
     (a posed model that uses its poses should get worse). A list `per_window` receives one dict per
     window (scene, ari, oracle_ari, room_kept, abs_rel): where a model fails, and train_recon.py
@@ -139,11 +149,16 @@ def evaluate(model, dataset, indices=None, grouping=GROUPING, swap_poses=False, 
         batch = {key: value[None] for key, value in item.items()}
         if swap_poses:
             batch['cameras'] = batch['cameras'].roll(1, dims=1)
-        depth, _, embeddings = model(**model.inputs(batch))
+        if with_vote_split:
+            depth, _, embeddings, votes = model.forward_with_votes(**model.inputs(batch))
+        else:
+            depth, _, embeddings = model(**model.inputs(batch))
         e = embeddings[0].permute(0, 2, 3, 1).reshape(-1, embeddings.shape[2])
         e = torch.nn.functional.normalize(e, dim=1).numpy()
         truth = item['instance'].reshape(-1).numpy()
         labels, raw, sample = node_grouping(e, grouping)
+        if with_vote_split:
+            labels = vote_split(labels, pixel_votes(votes[0], *item['instance'].shape[-2:]))
         aris.append(adjusted_rand_score(truth, labels))
         room_labels = labels[truth == 0]
         room_clusters = np.bincount(room_labels[room_labels >= 0])
@@ -224,6 +239,12 @@ class OnnxModel:
         feed = {name: tensor.numpy() for name, tensor in inputs.items()}
         return tuple(torch.from_numpy(t) for t in self.session.run(['depth', 'gaussians', 'embeddings'], feed))
 
+    def forward_with_votes(self, **inputs):
+        """(depth, gaussians, embeddings, votes [1,V,3,h,w]): a file with the `votes` output."""
+        feed = {name: tensor.numpy() for name, tensor in inputs.items()}
+        names = ['depth', 'gaussians', 'embeddings', 'votes']
+        return tuple(torch.from_numpy(t) for t in self.session.run(names, feed))
+
 
 def load_model(path, mode, threads, room_bias=0.0, guided=None):
     """A checkpoint (.pt), its room logit shifted by `room_bias` (GroupForwardMini.shift_room_logit) and
@@ -267,6 +288,8 @@ def main():
     parser.add_argument('--per-window', metavar='CSV',
                         help='also write one row per window (scene, ari, oracle_ari, room_kept, abs_rel); any '
                              'split, train included (train_recon.py --window-weights reads it)')
+    parser.add_argument('--vote-split', action='store_true',
+                        help="also split instances by the model's centre votes, as the node does")
     parser.add_argument('--swap-poses', action='store_true',
                         help='a posed RGB model: give every view the previous view\'s pose (does it use them?)')
     args = parser.parse_args()
@@ -277,7 +300,8 @@ def main():
     dataset = SimDataset(args.val, args.mode)
     end = len(dataset) if args.windows is None else min(len(dataset), args.first + args.windows)
     rows = [] if args.per_window else None
-    print(json.dumps(evaluate(model, dataset, range(args.first, end), grouping, args.swap_poses, rows)))
+    print(json.dumps(evaluate(model, dataset, range(args.first, end), grouping, args.swap_poses, rows,
+                              args.vote_split)))
     if rows is not None:
         with open(args.per_window, 'w', newline='') as f:
             writer = csv.DictWriter(f, fieldnames=list(rows[0]) if rows else ['scene'])

@@ -88,3 +88,86 @@ def node_grouping(embeddings, grouping=GROUPING, residual=RESIDUAL):
         # With no residual cluster at all `renamed` is empty: the noise stays noise.
         labels[noise] = np.where(more >= 0, renamed[np.maximum(more, 0)], -1) if len(renamed) else -1
     return labels, raw, sample
+
+
+# node/src/group/votes.rs `VoteSplit::default`: minimum separation (m), spread ratio, minimum part
+# points, minimum part share, rounds of halving.
+VOTE_SPLIT = (0.3, 2.5, 30, 0.1, 3)
+
+
+def _two_means(votes):
+    """node `two_means`: seeded with the vote farthest from the mean and the one farthest from it."""
+    first = votes[np.argmax(((votes - votes.mean(0)) ** 2).sum(1))]
+    centres = np.stack([first, votes[np.argmax(((votes - first) ** 2).sum(1))]])
+    side = np.zeros(len(votes), bool)
+    for _ in range(10):
+        side = ((votes - centres[1]) ** 2).sum(1) < ((votes - centres[0]) ** 2).sum(1)
+        if side.all() or not side.any():
+            break
+        centres = np.stack([votes[~side].mean(0), votes[side].mean(0)])
+    return side, centres
+
+
+def _halve(points, votes, split, round_=0):
+    separation_m, ratio, min_points, min_share, rounds = split
+    if round_ >= rounds or len(points) < 2 * max(min_points, 1):
+        return [points]
+    side, centres = _two_means(votes[points])
+    smaller = min(side.sum(), len(points) - side.sum())
+    separation = np.linalg.norm(centres[0] - centres[1])
+    spread = np.sqrt(((votes[points] - centres[side.astype(int)]) ** 2).sum(1).mean())
+    if not (separation >= separation_m and separation >= ratio * spread
+            and smaller >= max(min_points, 1) and smaller >= min_share * len(points)):
+        return [points]
+    return _halve(points[~side], votes, split, round_ + 1) + _halve(points[side], votes, split, round_ + 1)
+
+
+def _refine(parts, votes):
+    """node `refine`: Lloyd steps over all the parts of one cluster."""
+    points = np.sort(np.concatenate(parts))
+    for _ in range(10):
+        centres = np.stack([votes[p].mean(0) for p in parts])
+        nearest = ((votes[points][:, None] - centres[None]) ** 2).sum(2).argmin(1)
+        new = [points[nearest == k] for k in range(len(parts)) if (nearest == k).any()]
+        settled = len(new) == len(parts) and all(np.array_equal(a, np.sort(b)) for a, b in zip(new, parts))
+        parts = new
+        if settled:
+            break
+    return parts
+
+
+def _join_close(parts, votes, separation_m):
+    while len(parts) > 1:
+        centres = np.stack([votes[p].mean(0) for p in parts])
+        d = np.linalg.norm(centres[:, None] - centres[None], axis=2) + np.tril(np.full((len(parts),) * 2, np.inf))
+        a, b = np.unravel_index(d.argmin(), d.shape)
+        if d[a, b] >= separation_m:
+            break
+        parts[a] = np.concatenate([parts[a], parts[b]])
+        parts[b] = parts[-1]
+        parts.pop()
+    return parts
+
+
+def vote_split(labels, votes, split=VOTE_SPLIT):
+    """node/src/group/votes.rs `split_by_votes`: `labels` (per point, -1 noise) with every cluster
+    but the largest split where its `votes` [N,3] (metres) form separate clumps; new clusters take
+    the next labels. (Ties in the nearest-part and the closest-pair searches may resolve otherwise
+    than in the node; the rule is the same.)"""
+    labels = labels.copy()
+    if labels.size == 0 or labels.max() < 0:
+        return labels
+    counts = np.bincount(labels[labels >= 0])
+    largest = counts.argmax()
+    following = len(counts)
+    for k in range(len(counts)):
+        points = np.flatnonzero(labels == k)
+        if k == largest or points.size == 0 or not np.isfinite(votes[points]).all():
+            continue
+        parts = _halve(points, votes, split)
+        if len(parts) > 1:
+            parts = _join_close(_refine(parts, votes), votes, split[0])
+        for part in parts[1:]:
+            labels[part] = following
+            following += 1
+    return labels

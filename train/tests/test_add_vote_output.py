@@ -45,3 +45,21 @@ def test_the_residual_pass_finding_nothing_leaves_the_noise_as_noise():
     labels, _, _ = node_grouping(e)
     assert labels.shape == (405,)
     assert len(set(labels[:200])) == 1 and len(set(labels[200:400])) == 1
+
+
+def test_the_vote_split_parts_a_row_of_three_and_keeps_the_room_whole():
+    # The node's unit test (node/src/group/votes.rs) on the Python copy: three clumps of votes in a
+    # row come apart (halving alone cut the middle one), the room (the largest cluster) stays one.
+    from gf.grouping import vote_split
+    rng = np.random.default_rng(1)
+    room = rng.uniform(-1.5, 1.5, (400, 3))
+    row = np.concatenate([rng.uniform(-0.1, 0.1, (60, 3)) + [x, 1.0, 0.5] for x in (2.0, 2.8, 3.6)])
+    votes = np.concatenate([room, row])
+    labels = np.r_[np.zeros(400, int), np.ones(180, int)]
+    split = vote_split(labels, votes)
+    assert (split[:400] == 0).all()
+    parts = [set(split[400 + 60 * k:460 + 60 * k]) for k in range(3)]
+    assert all(len(p) == 1 for p in parts) and len(set.union(*parts)) == 3
+    blob = np.r_[np.zeros(400, int), np.ones(180, int)]
+    spread = np.concatenate([room, rng.normal([2.8, 1.0, 0.5], 0.5, (180, 3))])
+    assert (vote_split(blob, spread) == blob).all(), 'one spread blob stays one'

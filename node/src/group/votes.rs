@@ -5,7 +5,8 @@
 //! point at two centres. On 60 `layouts` windows (scenes 40-99) the 183 pairs of identical
 //! touching objects had vote centres a median 0.75 m apart with a median spread of 0.25 m
 //! around them, and 2-means on the pair's votes split it at ARI 0.72 where the grouping's own
-//! labels scored 0.24 (`train/eval_recon.py` windows; the probe is in the commit that added this).
+//! labels scored 0.24. `train/eval_recon.py --vote-split` scores this split on sim windows
+//! (`gf.grouping.vote_split` mirrors it).
 //!
 //! A cluster splits in two when 2-means on its votes finds centres at least
 //! [`VoteSplit::min_separation_m`] apart and at least [`VoteSplit::spread_ratio`] times the root
@@ -23,8 +24,9 @@ pub struct VoteSplit {
     pub min_separation_m: f32,
     /// ... and at least this many times the votes' root mean square distance to their part's
     /// centre: two clumps, not one spread blob. Chosen on the windows of `layouts` 40-99 and
-    /// `val` 400-459, `realistic` included: 2.25 / 2.5 / 3 found 73.0 / 71.3 / 67.2% of the
-    /// layouts objects against 64.6% unsplit, 92.7 / 92.4 / 92.1% of val's against 91.1%.
+    /// `val` 400-459, `realistic` included, by halving alone: 2.25 / 2.5 / 3 found 73.0 / 71.3 /
+    /// 67.2% of the layouts objects against 64.6% unsplit, 92.7 / 92.4 / 92.1% of val's against
+    /// 91.1%; with the Lloyd steps after it, 2.5 finds 71.7 and 92.7%.
     pub spread_ratio: f32,
     /// Each part holds at least this many points ...
     pub min_part_points: usize,
