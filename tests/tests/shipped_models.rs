@@ -708,10 +708,7 @@ fn the_vote_split_parts_identical_neighbours_the_embeddings_join() {
         let params = GroupingParams::default();
         let grouped = group(&gaussians.embeddings, gaussians.embedding_dim, &params).unwrap();
         let scale = model.manifest.normalization.as_ref().unwrap().points_scale;
-        let point_votes: Vec<glam::Vec3> = pixels
-            .iter()
-            .map(|&p| glam::Vec3::from(votes.at(p, w, h).unwrap()) * scale)
-            .collect();
+        let point_votes = votes.of_pixels(&pixels, w, h, scale);
         let mut split = grouped.labels.clone();
         split_by_votes(&mut split, &point_votes, &params.vote_split.unwrap());
         let (found_split, n) = objects_found(&split, &truth_labels);

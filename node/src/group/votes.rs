@@ -232,13 +232,21 @@ mod tests {
             .collect()
     }
 
+    /// The room's 400 votes (cluster 0, the largest) and one object cluster (1) of `clumps`
+    /// (centre, votes, spread): votes and labels.
+    fn room_and_one_cluster(clumps: &[(Vec3, usize, f32)]) -> (Vec<Vec3>, Vec<i32>) {
+        let mut votes = clump(Vec3::ZERO, 400, 3.0);
+        for &(centre, n, spread) in clumps {
+            votes.extend(clump(centre, n, spread));
+        }
+        let labels = (0..votes.len()).map(|i| i32::from(i >= 400)).collect();
+        (votes, labels)
+    }
+
     #[test]
     fn a_row_of_three_clumps_comes_apart_and_the_room_stays_whole() {
-        let mut votes = clump(Vec3::ZERO, 400, 3.0); // the room: the largest cluster
-        for x in [2.0, 2.8, 3.6] {
-            votes.extend(clump(Vec3::new(x, 1.0, 0.5), 60, 0.2));
-        }
-        let mut labels: Vec<i32> = (0..votes.len()).map(|i| i32::from(i >= 400)).collect();
+        let row = [2.0, 2.8, 3.6].map(|x| (Vec3::new(x, 1.0, 0.5), 60, 0.2));
+        let (votes, mut labels) = room_and_one_cluster(&row);
         let added = split_by_votes(&mut labels, &votes, &VoteSplit::default());
         assert_eq!(added, 2);
         assert!(labels[..400].iter().all(|&l| l == 0), "the room stays one");
@@ -252,9 +260,8 @@ mod tests {
 
     #[test]
     fn one_spread_blob_of_votes_stays_one_instance() {
-        let mut votes = clump(Vec3::ZERO, 400, 3.0);
-        votes.extend(clump(Vec3::new(2.0, 1.0, 0.5), 200, 1.0)); // a bed's votes, widely spread
-        let mut labels: Vec<i32> = (0..votes.len()).map(|i| i32::from(i >= 400)).collect();
+        // A bed's votes, widely spread.
+        let (votes, mut labels) = room_and_one_cluster(&[(Vec3::new(2.0, 1.0, 0.5), 200, 1.0)]);
         assert_eq!(
             split_by_votes(&mut labels, &votes, &VoteSplit::default()),
             0
@@ -263,10 +270,10 @@ mod tests {
 
     #[test]
     fn clumps_closer_than_the_separation_stay_one() {
-        let mut votes = clump(Vec3::ZERO, 400, 3.0);
-        votes.extend(clump(Vec3::new(2.0, 1.0, 0.5), 60, 0.02));
-        votes.extend(clump(Vec3::new(2.2, 1.0, 0.5), 60, 0.02));
-        let mut labels: Vec<i32> = (0..votes.len()).map(|i| i32::from(i >= 400)).collect();
+        let (votes, mut labels) = room_and_one_cluster(&[
+            (Vec3::new(2.0, 1.0, 0.5), 60, 0.02),
+            (Vec3::new(2.2, 1.0, 0.5), 60, 0.02),
+        ]);
         assert_eq!(
             split_by_votes(&mut labels, &votes, &VoteSplit::default()),
             0
@@ -275,11 +282,11 @@ mod tests {
 
     #[test]
     fn non_finite_or_mismatched_votes_split_nothing() {
-        let mut votes = clump(Vec3::ZERO, 400, 3.0);
-        votes.extend(clump(Vec3::new(2.0, 1.0, 0.5), 60, 0.2));
-        votes.extend(clump(Vec3::new(3.0, 1.0, 0.5), 60, 0.2));
+        let (mut votes, mut labels) = room_and_one_cluster(&[
+            (Vec3::new(2.0, 1.0, 0.5), 60, 0.2),
+            (Vec3::new(3.0, 1.0, 0.5), 60, 0.2),
+        ]);
         votes[450] = Vec3::NAN;
-        let mut labels: Vec<i32> = (0..votes.len()).map(|i| i32::from(i >= 400)).collect();
         assert_eq!(
             split_by_votes(&mut labels, &votes, &VoteSplit::default()),
             0

@@ -111,6 +111,24 @@ impl Votes {
                 .map(|v| v.unwrap_or(f32::NAN)),
         )
     }
+
+    /// The votes of `pixels` (as [`Self::at`]) in metres: the model's units times `points_scale`
+    /// (the centring offset is common to all and drops out of distances); NaN off the grid.
+    pub fn of_pixels(
+        &self,
+        pixels: &[usize],
+        width: usize,
+        height: usize,
+        points_scale: f32,
+    ) -> Vec<glam::Vec3> {
+        pixels
+            .iter()
+            .map(|&p| {
+                self.at(p, width, height)
+                    .map_or(glam::Vec3::NAN, |v| glam::Vec3::from(v) * points_scale)
+            })
+            .collect()
+    }
 }
 
 /// A loaded reconstruction model.

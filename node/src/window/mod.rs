@@ -30,7 +30,7 @@ use crate::group::votes::split_by_votes;
 use crate::group::{group, GroupError, GroupingParams};
 use crate::model::manifest::InputMode;
 use crate::model::reconstruction::{
-    lifted_pixels, resized_camera, use_sensor_depth, Prediction, ReconstructionModel, View, Votes,
+    lifted_pixels, resized_camera, use_sensor_depth, Prediction, ReconstructionModel, View,
 };
 use crate::model::semantic::SemanticModel;
 use crate::model::ModelError;
@@ -244,7 +244,7 @@ pub fn pass_with_cache(
                 .normalization
                 .as_ref()
                 .map_or(1.0, |n| n.points_scale);
-            let votes = gaussian_votes(votes, &pixels, &prediction, scale);
+            let votes = votes.of_pixels(&pixels, prediction.width, prediction.height, scale);
             split_by_votes(&mut grouped.labels, &votes, split);
         }
         Ok::<_, GroupError>(grouped)
@@ -376,24 +376,6 @@ struct Cleaned {
 
 /// Map hygiene: no flying pixels or transparent Gaussians in objects, a cluster that falls apart
 /// in space becomes its parts, and the floor around an object's foot leaves it.
-/// Each lifted point's centre vote in metres (the model's units times `points_scale`; the
-/// centring offset is common to all and drops out of distances).
-fn gaussian_votes(
-    votes: &Votes,
-    pixels: &[usize],
-    prediction: &Prediction,
-    points_scale: f32,
-) -> Vec<glam::Vec3> {
-    pixels
-        .iter()
-        .map(|&p| {
-            votes
-                .at(p, prediction.width, prediction.height)
-                .map_or(glam::Vec3::NAN, |v| glam::Vec3::from(v) * points_scale)
-        })
-        .collect()
-}
-
 fn clean(
     mut labels: Vec<i32>,
     gaussians: &Gaussians,
