@@ -176,6 +176,7 @@ impl SceneMap {
                 && is_object(pb)
                 && (is_leg_of(bounds_a, bounds_b) || is_leg_of(bounds_b, bounds_a))
             {
+                tracing::debug!(a = %instances[a].id, b = %instances[b].id, "fold rule: a leg");
                 return true;
             }
             if pa.is_empty() || pb.is_empty() || !same_kind(pa, pb) {
@@ -184,9 +185,10 @@ impl SceneMap {
             let (back_a, spread_a) = footprints.back_bounds(instances, a);
             let (back_b, spread_b) = footprints.back_bounds(instances, b);
             if is_back_of(back_a, bounds_b, spread_a) || is_back_of(back_b, bounds_a, spread_b) {
+                tracing::debug!(a = %instances[a].id, b = %instances[b].id, "fold rule: a back");
                 return true;
             }
-            cosine(pa, pb) >= p.duplicate_similarity
+            let fragments = cosine(pa, pb) >= p.duplicate_similarity
                 && footprints.overlap(instances, a, b) >= FRAGMENT_TOUCH
                 && kinds.largest_side(pa).is_none_or(|side| {
                     let both: Vec<Vec3> = instances[a]
@@ -198,7 +200,11 @@ impl SceneMap {
                         .collect();
                     let union = fit_object_box(&both, DEFAULT_TRIM);
                     union.size.x.max(union.size.y) <= FRAGMENT_SIDE_MARGIN * side
-                })
+                });
+            if fragments {
+                tracing::debug!(a = %instances[a].id, b = %instances[b].id, "fold rule: fragments");
+            }
+            fragments
         });
         self.retain_marked(&keep);
         folded
@@ -305,10 +311,16 @@ impl SceneMap {
             let box_b = footprints.oriented_box(instances, b);
             let iou = box_a.iou(&box_b);
             if iou >= ONE_SPACE_IOU {
+                tracing::debug!(a = %instances[a].id, b = %instances[b].id, iou, "fold rule: one space");
                 return true;
             }
             // Point footprints only where boxes alone do not decide.
-            similar && (iou >= p.duplicate_iou || footprints.overlap(instances, a, b) >= 0.5)
+            let duplicate =
+                similar && (iou >= p.duplicate_iou || footprints.overlap(instances, a, b) >= 0.5);
+            if duplicate {
+                tracing::debug!(a = %instances[a].id, b = %instances[b].id, iou, "fold rule: duplicates");
+            }
+            duplicate
         })
     }
 }
