@@ -8,7 +8,10 @@ cluster centroid, or noise when that centroid is farther than 0.7. `--grouping 6
 another setting (min_cluster_size, min_samples, noise distance, merge distance; the node's default
 before this one). `--vote-split` adds the node's split of an instance by the model's centre votes
 (node/src/group/votes.rs, on by default in the node; gf.grouping.vote_split), for models with votes:
-without it these figures are the embeddings' grouping alone.
+without it these figures are the embeddings' grouping alone. `--room-votes` (with `--vote-split`) also
+gives back from the room what votes above the floor when most of the room votes under it
+(gf.grouping.room_give_back: for a model trained with `train_recon.py --room-vote`; the node has
+no such rule, see train/README.md "A room that votes under the floor").
 Scored with ARI against the ground-truth instances (walls and floor = one instance; noise is its
 own label), the mean over windows with its standard error (`ari_se`). `ari_hdbscan` is HDBSCAN's own
 labels on the subsample (noise unassigned), for reference.
@@ -57,7 +60,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from gf.data import SimDataset  # noqa: E402
 from gf.model import batch_inputs, cpu_session  # noqa: E402
 from gf.recover import model_from_file  # noqa: E402
-from gf.grouping import GROUPING, node_grouping, unit_centroids, vote_split  # noqa: E402
+from gf.grouping import GROUPING, ROOM_VOTES, node_grouping, unit_centroids, vote_split  # noqa: E402
 from gf.model import POINTS_SCALE  # noqa: E402
 
 PAIR_GAP = 0.15
@@ -130,8 +133,9 @@ def pixel_votes(votes, height, width):
     return v.permute(0, 2, 3, 1).reshape(-1, 3).numpy() * POINTS_SCALE
 
 
+@torch.no_grad()
 def evaluate(model, dataset, indices=None, grouping=GROUPING, swap_poses=False, per_window=None,
-             with_vote_split=False):
+             with_vote_split=False, room_votes=None):
     """The metrics above over the windows `indices`; `swap_poses` gives every view the previous view's pose
     (a posed model that uses its poses should get worse). A list `per_window` receives one dict per
     window (scene, ari, oracle_ari, room_kept, abs_rel): where a model fails, and train_recon.py
@@ -158,7 +162,11 @@ def evaluate(model, dataset, indices=None, grouping=GROUPING, swap_poses=False, 
         truth = item['instance'].reshape(-1).numpy()
         labels, raw, sample = node_grouping(e, grouping)
         if with_vote_split:
-            labels = vote_split(labels, pixel_votes(votes[0], *item['instance'].shape[-2:]))
+            xyz = item['points'].permute(0, 2, 3, 1).reshape(-1, 3).numpy() * POINTS_SCALE
+            measured = item['depth'].reshape(-1).numpy() > 0
+            floor = np.percentile(xyz[measured, 2], 2) if measured.any() else np.nan
+            labels = vote_split(labels, pixel_votes(votes[0], *item['instance'].shape[-2:]), room=room_votes,
+                                floor=floor)
         aris.append(adjusted_rand_score(truth, labels))
         room_labels = labels[truth == 0]
         room_clusters = np.bincount(room_labels[room_labels >= 0])
@@ -290,6 +298,9 @@ def main():
                              'split, train included (train_recon.py --window-weights reads it)')
     parser.add_argument('--vote-split', action='store_true',
                         help="also split instances by the model's centre votes, as the node does")
+    parser.add_argument('--room-votes', action='store_true',
+                        help='with --vote-split: also give back from the room what votes away from its clump of '
+                             'votes (a model trained with --room-vote; gf.grouping.room_give_back)')
     parser.add_argument('--swap-poses', action='store_true',
                         help='a posed RGB model: give every view the previous view\'s pose (does it use them?)')
     args = parser.parse_args()
@@ -301,7 +312,7 @@ def main():
     end = len(dataset) if args.windows is None else min(len(dataset), args.first + args.windows)
     rows = [] if args.per_window else None
     print(json.dumps(evaluate(model, dataset, range(args.first, end), grouping, args.swap_poses, rows,
-                              args.vote_split)))
+                              args.vote_split, ROOM_VOTES if args.room_votes else None)))
     if rows is not None:
         with open(args.per_window, 'w', newline='') as f:
             writer = csv.DictWriter(f, fieldnames=list(rows[0]) if rows else ['scene'])

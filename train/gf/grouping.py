@@ -93,6 +93,11 @@ def node_grouping(embeddings, grouping=GROUPING, residual=RESIDUAL):
 # node/src/group/votes.rs `VoteSplit::default`: minimum separation (m), spread ratio, minimum part
 # points, minimum part share, rounds of halving.
 VOTE_SPLIT = (0.3, 2.5, 30, 0.1, 3)
+# A model trained with a room vote target (train_recon.py --room-vote) has walls and floor vote
+# for a point metres below the floor. The window's largest cluster is that room when at least
+# `share` of its votes lie `below` (m) under the floor; its points voting above the floor less
+# `margin` (m) are objects the grouping gave the room.
+ROOM_VOTES = (1.0, 0.5, 0.25)
 
 
 def _two_means(votes):
@@ -149,7 +154,24 @@ def _join_close(parts, votes, separation_m):
     return parts
 
 
-def vote_split(labels, votes, split=VOTE_SPLIT):
+def room_give_back(labels, votes, largest, floor, room=ROOM_VOTES, min_points=VOTE_SPLIT[2]):
+    """The points of cluster `largest` voting above the floor (height `floor`, the votes' frame)
+    while most of it votes under it (ROOM_VOTES), as a new cluster; returns its label or None."""
+    below, share, margin = room
+    points = np.flatnonzero(labels == largest)
+    v = votes[points]
+    if points.size == 0 or not np.isfinite(v).all() or not np.isfinite(floor):
+        return None
+    if (v[:, 2] < floor - below).mean() < share:
+        return None
+    out = points[v[:, 2] > floor - margin]
+    if out.size < max(min_points, 1):
+        return None
+    labels[out] = labels.max() + 1
+    return labels[out[0]]
+
+
+def vote_split(labels, votes, split=VOTE_SPLIT, room=None, floor=np.nan):
     """node/src/group/votes.rs `split_by_votes`: `labels` (per point, -1 noise) with every cluster
     but the largest split where its `votes` [N,3] (metres) form separate clumps; new clusters take
     the next labels. (Ties in the nearest-part and the closest-pair searches may resolve otherwise
@@ -159,6 +181,9 @@ def vote_split(labels, votes, split=VOTE_SPLIT):
         return labels
     counts = np.bincount(labels[labels >= 0])
     largest = counts.argmax()
+    if room is not None:
+        room_give_back(labels, votes, largest, floor, room, split[2])
+        counts = np.bincount(labels[labels >= 0])
     following = len(counts)
     for k in range(len(counts)):
         points = np.flatnonzero(labels == k)

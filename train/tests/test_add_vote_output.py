@@ -63,3 +63,19 @@ def test_the_vote_split_parts_a_row_of_three_and_keeps_the_room_whole():
     blob = np.r_[np.zeros(400, int), np.ones(180, int)]
     spread = np.concatenate([room, rng.normal([2.8, 1.0, 0.5], 0.5, (180, 3))])
     assert (vote_split(blob, spread) == blob).all(), 'one spread blob stays one'
+
+
+def test_the_room_gives_back_what_votes_above_the_floor_only_when_it_votes_below_it():
+    # --room-votes (gf.grouping.room_give_back): a room cluster whose walls vote metres under the
+    # floor (a model trained with --room-vote) gives back the cabinet voting above it; a room whose
+    # votes lie around it (the shipped model's) gives back nothing.
+    from gf.grouping import ROOM_VOTES, vote_split
+    rng = np.random.default_rng(2)
+    walls = rng.normal([0.0, 0.0, -3.0], 0.3, (400, 3))
+    cabinet = rng.normal([1.0, 2.0, 0.5], 0.1, (80, 3))
+    labels = np.zeros(480, int)
+    given = vote_split(labels, np.concatenate([walls, cabinet]), room=ROOM_VOTES, floor=0.0)
+    assert (given[:400] == 0).all() and len(set(given[400:])) == 1 and given[400] != 0
+    around = np.concatenate([rng.uniform(-2, 2, (400, 3)), cabinet])
+    assert (vote_split(labels, around, room=ROOM_VOTES, floor=0.0) == 0).all()
+    assert (vote_split(labels, np.concatenate([walls, cabinet])) == 0).all(), 'off without room'
