@@ -95,8 +95,13 @@ impl ViewPose {
 pub struct Geometry {
     pub id: u16,
     pub class: &'static str,
+    /// Axis-aligned bounds: where the object is.
     pub lo: DVec3,
     pub hi: DVec3,
+    /// Its size along its own axes (m): how big it is. The bounds of a turned object are larger
+    /// than it: a round plant's box turned by 45° has bounds of twice its footprint, so the
+    /// bounds' volume made one of two alike plants "the biggest" by its yaw alone.
+    pub extent: DVec3,
     pub color: [f32; 3],
 }
 
@@ -105,9 +110,9 @@ impl Geometry {
         (self.lo + self.hi) / 2.0
     }
 
+    /// The object's own volume ([`Geometry::extent`]), not its bounds'.
     pub fn volume(&self) -> f64 {
-        let s = self.hi - self.lo;
-        s.x * s.y * s.z
+        self.extent.x * self.extent.y * self.extent.z
     }
 
     pub fn height(&self) -> f64 {
@@ -234,6 +239,7 @@ mod tests {
             class: "box",
             lo: centre - DVec3::splat(half),
             hi: centre + DVec3::splat(half),
+            extent: DVec3::splat(2.0 * half),
             color: [0.5, 0.5, 0.5],
         }
     }
@@ -254,12 +260,28 @@ mod tests {
     }
 
     #[test]
+    fn a_turned_object_is_no_bigger_than_its_twin() {
+        // Two 0.4 m plants, the second turned by 45°: its bounds are 0.57 m wide.
+        let plant = cube(0, DVec3::ZERO, 0.2);
+        let half = 0.2 * std::f64::consts::SQRT_2;
+        let turned = Geometry {
+            lo: DVec3::new(-half, -half, -0.2),
+            hi: DVec3::new(half, half, 0.2),
+            ..cube(1, DVec3::ZERO, 0.2)
+        };
+        let bounds = |g: &Geometry| (g.hi - g.lo).x * (g.hi - g.lo).y * (g.hi - g.lo).z;
+        assert!(bounds(&turned) > 1.9 * bounds(&plant));
+        assert!((turned.volume() - plant.volume()).abs() < 1e-12);
+    }
+
+    #[test]
     fn a_box_on_a_table_is_on_it_and_above_it_and_the_table_is_neither() {
         let table = Geometry {
             id: 0,
             class: "table",
             lo: DVec3::new(0.0, 0.0, 0.0),
             hi: DVec3::new(1.2, 0.8, 0.75),
+            extent: DVec3::new(1.2, 0.8, 0.75),
             color: [0.5, 0.32, 0.18],
         };
         let box_on_top = cube(1, DVec3::new(0.6, 0.4, 0.85), 0.1);

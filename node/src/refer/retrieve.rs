@@ -58,6 +58,7 @@ pub fn geometry(node: &ReferNode, index: usize) -> Geometry {
         class: "object",
         lo: node.lo,
         hi: node.hi,
+        extent: node.bbox.size,
         color: node.color,
     }
 }
@@ -125,11 +126,10 @@ fn soft(relation: Relation, margin: f64) -> f32 {
 
 /// The key a superlative ranks by (larger wins).
 pub fn superlative_key(s: Superlative, g: &Geometry, view: Option<&ViewPose>) -> f64 {
-    let size = g.hi - g.lo;
     match s {
-        Superlative::Biggest => (size.x * size.y * size.z).max(1e-12).ln(),
-        Superlative::Smallest => -(size.x * size.y * size.z).max(1e-12).ln(),
-        Superlative::Tallest => size.z,
+        Superlative::Biggest => g.volume().max(1e-12).ln(),
+        Superlative::Smallest => -g.volume().max(1e-12).ln(),
+        Superlative::Tallest => g.height(),
         Superlative::Highest => g.hi.z,
         Superlative::Lowest => -g.lo.z,
         Superlative::Leftmost => view.map_or(0.0, |v| -bearing(v, g.center()).0),

@@ -30,7 +30,7 @@ pub struct Expression {
     pub view: Option<ViewPose>,
 }
 
-/// The relation geometry of a placed object: its bounds, class name and colour.
+/// The relation geometry of a placed object: its bounds, its own size, class name and colour.
 pub fn geometry(object: &PlacedObject) -> Geometry {
     let (lo, hi) = object.bounds();
     let class = library::classes()
@@ -42,6 +42,7 @@ pub fn geometry(object: &PlacedObject) -> Geometry {
         class,
         lo,
         hi,
+        extent: object.oriented_extent().map_or(hi - lo, |(_, size)| size),
         color: object.color,
     }
 }
