@@ -133,6 +133,13 @@ def pixel_votes(votes, height, width):
     return v.permute(0, 2, 3, 1).reshape(-1, 3).numpy() * POINTS_SCALE
 
 
+def window_floor(item):
+    """The floor's height in the model's frame (metres): the 2nd percentile of the measured points'."""
+    xyz = item['points'].permute(0, 2, 3, 1).reshape(-1, 3).numpy() * POINTS_SCALE
+    measured = item['depth'].reshape(-1).numpy() > 0
+    return np.percentile(xyz[measured, 2], 2) if measured.any() else np.nan
+
+
 @torch.no_grad()
 def evaluate(model, dataset, indices=None, grouping=GROUPING, swap_poses=False, per_window=None,
              with_vote_split=False, room_votes=None):
@@ -162,11 +169,8 @@ def evaluate(model, dataset, indices=None, grouping=GROUPING, swap_poses=False, 
         truth = item['instance'].reshape(-1).numpy()
         labels, raw, sample = node_grouping(e, grouping)
         if with_vote_split:
-            xyz = item['points'].permute(0, 2, 3, 1).reshape(-1, 3).numpy() * POINTS_SCALE
-            measured = item['depth'].reshape(-1).numpy() > 0
-            floor = np.percentile(xyz[measured, 2], 2) if measured.any() else np.nan
             labels = vote_split(labels, pixel_votes(votes[0], *item['instance'].shape[-2:]), room=room_votes,
-                                floor=floor)
+                                floor=window_floor(item) if room_votes else np.nan)
         aris.append(adjusted_rand_score(truth, labels))
         room_labels = labels[truth == 0]
         room_clusters = np.bincount(room_labels[room_labels >= 0])

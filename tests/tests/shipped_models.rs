@@ -262,13 +262,18 @@ fn depth_abs_rel(
     (error / scored.len() as f64, scored)
 }
 
-fn rgb_model() -> ReconstructionModel {
+/// A shipped reconstruction model by its manifest's file name.
+fn reconstruction_model(manifest: &str) -> ReconstructionModel {
     init_runtime(None).unwrap_or_else(|e| panic!("{e}"));
-    ReconstructionModel::load(
-        &models().join("groupforward-mini-rgb.toml"),
-        &SessionOptions::default(),
-    )
-    .unwrap()
+    ReconstructionModel::load(&models().join(manifest), &SessionOptions::default()).unwrap()
+}
+
+fn rgbd_model() -> ReconstructionModel {
+    reconstruction_model("groupforward-mini-rgbd.toml")
+}
+
+fn rgb_model() -> ReconstructionModel {
+    reconstruction_model("groupforward-mini-rgb.toml")
 }
 
 #[test]
@@ -496,12 +501,7 @@ fn with_effects(index: u64, preset: Preset) -> Simulation {
 #[test]
 fn pixels_without_valid_depth_become_gaussians_only_where_the_models_depth_continues_a_measured_neighbour_at_its_depth(
 ) {
-    init_runtime(None).unwrap_or_else(|e| panic!("{e}"));
-    let mut model = ReconstructionModel::load(
-        &models().join("groupforward-mini-rgbd.toml"),
-        &SessionOptions::default(),
-    )
-    .unwrap();
+    let mut model = rgbd_model();
     // 30% random dropout (NaN, as ingest marks every invalid pixel).
     let frames = window_frames(&with_effects(0, Preset::Dropout(0.3)));
     let views: Vec<View> = frames.iter().map(View::from).collect();
@@ -602,12 +602,7 @@ fn thirty_percent_depth_dropout_leaves_the_window_s_instances_as_they_were() {
     // labels on the pixels both lift 0.986 with the model's input filled as in training (0.172
     // with the fill switched off: dropped pixels went in as the window's centre point).
     const FLOOR: f64 = 0.85;
-    init_runtime(None).unwrap_or_else(|e| panic!("{e}"));
-    let mut model = ReconstructionModel::load(
-        &models().join("groupforward-mini-rgbd.toml"),
-        &SessionOptions::default(),
-    )
-    .unwrap();
+    let mut model = rgbd_model();
     let mut sum = 0.0;
     for index in 0..4 {
         let (clean, _) = window_labels(
@@ -649,12 +644,6 @@ fn objects_found(labels: &[i32], truth: &[u32]) -> (usize, usize) {
         *by_object.entry(t).or_default().entry(l).or_default() += 1;
         *by_label.entry(l).or_default().entry(t).or_default() += 1;
     }
-    let majority = |counts: &HashMap<i32, usize>| {
-        counts
-            .iter()
-            .max_by_key(|(l, n)| (**n, std::cmp::Reverse(**l)))
-            .map(|(l, _)| *l)
-    };
     let room = by_object.get(&0).and_then(majority);
     let (mut found, mut objects) = (0, 0);
     for (&object, counts) in by_object.iter().filter(|(&t, _)| t > 0) {
@@ -665,17 +654,19 @@ fn objects_found(labels: &[i32], truth: &[u32]) -> (usize, usize) {
         let Some(label) = majority(counts).filter(|&l| l >= 0 && Some(l) != room) else {
             continue;
         };
-        let holds = &by_label[&label];
-        if holds
-            .iter()
-            .max_by_key(|(t, n)| (**n, std::cmp::Reverse(**t)))
-            .map(|(t, _)| *t)
-            == Some(object)
-        {
+        if majority(&by_label[&label]) == Some(object) {
             found += 1;
         }
     }
     (found, objects)
+}
+
+/// The key with the largest count (ties to the smallest key).
+fn majority<K: Copy + Ord>(counts: &std::collections::HashMap<K, usize>) -> Option<K> {
+    counts
+        .iter()
+        .max_by_key(|(k, n)| (**n, std::cmp::Reverse(**k)))
+        .map(|(k, _)| *k)
 }
 
 #[test]
@@ -684,12 +675,7 @@ fn the_vote_split_parts_identical_neighbours_the_embeddings_join() {
     // RGB-D model's centre votes tell apart what its embeddings join. Measured on layouts rooms
     // 0-5 with the shipped file: 44 of 59 objects found with the split against 37 without (on
     // the 60 windows of layouts 40-99: 71 against 65%). With the split a no-op this fails.
-    init_runtime(None).unwrap_or_else(|e| panic!("{e}"));
-    let mut model = ReconstructionModel::load(
-        &models().join("groupforward-mini-rgbd.toml"),
-        &SessionOptions::default(),
-    )
-    .unwrap();
+    let mut model = rgbd_model();
     let (mut with_split, mut without, mut objects) = (0, 0, 0);
     for index in 0..6 {
         let sim = Simulation::new(generate(Split::Layouts, index).unwrap()).unwrap();
@@ -707,8 +693,7 @@ fn the_vote_split_parts_identical_neighbours_the_embeddings_join() {
         let truth_labels = truth_of_pixels(&pixels, &prediction, &frames, &truth);
         let params = GroupingParams::default();
         let grouped = group(&gaussians.embeddings, gaussians.embedding_dim, &params).unwrap();
-        let scale = model.manifest.normalization.as_ref().unwrap().points_scale;
-        let point_votes = votes.of_pixels(&pixels, w, h, scale);
+        let point_votes = votes.of_pixels(&pixels, w, h, model.points_scale());
         let mut split = grouped.labels.clone();
         split_by_votes(&mut split, &point_votes, &params.vote_split.unwrap());
         let (found_split, n) = objects_found(&split, &truth_labels);

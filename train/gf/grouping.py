@@ -156,19 +156,15 @@ def _join_close(parts, votes, separation_m):
 
 def room_give_back(labels, votes, largest, floor, room=ROOM_VOTES, min_points=VOTE_SPLIT[2]):
     """The points of cluster `largest` voting above the floor (height `floor`, the votes' frame)
-    while most of it votes under it (ROOM_VOTES), as a new cluster; returns its label or None."""
+    while most of it votes under it (ROOM_VOTES) become a new cluster of `labels` (in place)."""
     below, share, margin = room
     points = np.flatnonzero(labels == largest)
     v = votes[points]
     if points.size == 0 or not np.isfinite(v).all() or not np.isfinite(floor):
-        return None
-    if (v[:, 2] < floor - below).mean() < share:
-        return None
+        return
     out = points[v[:, 2] > floor - margin]
-    if out.size < max(min_points, 1):
-        return None
-    labels[out] = labels.max() + 1
-    return labels[out[0]]
+    if (v[:, 2] < floor - below).mean() >= share and out.size >= max(min_points, 1):
+        labels[out] = labels.max() + 1
 
 
 def vote_split(labels, votes, split=VOTE_SPLIT, room=None, floor=np.nan):

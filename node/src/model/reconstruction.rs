@@ -476,6 +476,15 @@ impl ReconstructionModel {
         Ok(Self { session, manifest })
     }
 
+    /// What world metres were divided by for the model's geometry input and outputs (1 when
+    /// the manifest gives no normalisation).
+    pub fn points_scale(&self) -> f32 {
+        self.manifest
+            .normalization
+            .as_ref()
+            .map_or(1.0, |n| n.points_scale)
+    }
+
     pub fn mode(&self) -> InputMode {
         self.manifest.mode.unwrap_or(InputMode::Rgb)
     }
@@ -518,7 +527,7 @@ impl ReconstructionModel {
             .map(|v| v.world_from_camera.translation)
             .sum::<DVec3>()
             / views.len() as f64;
-        let scale = f64::from(norm.as_ref().map_or(1.0, |n| n.points_scale));
+        let scale = f64::from(self.points_scale());
         let geometry = match self.mode() {
             InputMode::Rgb => Geometry::None,
             InputMode::RgbPosed => posed_cameras(views, width, height, centre, scale),

@@ -239,11 +239,7 @@ pub fn pass_with_cache(
             grouping,
         )?;
         if let (Some(split), Some(votes)) = (&grouping.vote_split, &prediction.votes) {
-            let scale = model
-                .manifest
-                .normalization
-                .as_ref()
-                .map_or(1.0, |n| n.points_scale);
+            let scale = model.points_scale();
             let votes = votes.of_pixels(&pixels, prediction.width, prediction.height, scale);
             split_by_votes(&mut grouped.labels, &votes, split);
         }
