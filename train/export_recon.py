@@ -156,7 +156,9 @@ def checkpoint_provenance(args, model, summary, guided):
         head += ' + full-resolution refinement'
     if train_args.get('vote_weight'):
         room = '; walls and floor vote below the floor' if train_args.get('room_vote') else ''
-        head += f" (supervised by the centre-vote loss, weight {train_args['vote_weight']:g}{room})"
+        target = ("; an object's pixels vote for its whole box's centre"
+                  if train_args.get('vote_target') == 'box' else '')
+        head += f" (supervised by the centre-vote loss, weight {train_args['vote_weight']:g}{target}{room})"
     if model.room_gate:
         gate = 'full-resolution ' if model.sharp_gate else ''
         weighing = ', per pixel' if train_args.get('gate_per_pixel') else ''
@@ -174,7 +176,9 @@ def checkpoint_provenance(args, model, summary, guided):
     if guided:
         after_training = bool(args.guided) or not trained_guided(train_args)
         head += f'; {guided_note(*guided, after_training=after_training, points=model.mode == "rgbd")}'
-    return (f"{origin} on groupforward-sim train split ({summary['train_windows']} windows x 4 views, 128x96), "
+    splits = ' + '.join(dict.fromkeys(summary.get('train_splits') or ['train']))
+    plural = 's' if '+' in splits else ''
+    return (f"{origin} on groupforward-sim {splits} split{plural} ({summary['train_windows']} windows x 4 views, 128x96), "
             f"checkpoint of step {step} ({minutes:.0f} min) of a {summary['steps']}-step, "
             f"{summary['minutes']:.0f}-min run on {trained_on}, {picked}; {head}; "
             f"{losses}{'; pseudo instance labels' if train_args.get('pseudo_labels') else ''}")

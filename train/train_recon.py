@@ -80,6 +80,18 @@ def float32(outputs):
     return tuple(None if output is None else output.float() for output in outputs)
 
 
+def training_splits(manifest):
+    """The sim splits a training dataset holds (a merged one's parts', train/merge_datasets.py), for
+    the exported model's provenance; read at the start, so a part removed later costs nothing."""
+    splits = []
+    for part in manifest.get('merged_from') or []:
+        try:
+            splits.append(json.loads((Path(part) / 'dataset.json').read_text())['split'])
+        except (OSError, ValueError, KeyError):
+            splits.append('train')
+    return splits or [manifest.get('split', 'train')]
+
+
 def evaluate_on_cpu(model, val, selection):
     """Validation as the node groups (HDBSCAN and numpy run on the CPU), on a copy of the model."""
     with torch.device('cpu'):
@@ -129,6 +141,10 @@ def main():
                              '(gf.losses.ROOM_VOTE) instead of having no vote target')
     parser.add_argument('--hard-push', action='store_true',
                         help='push hinge averaged over the violating centroid pairs only (gf.losses.direct_losses)')
+    parser.add_argument('--vote-target', choices=('centroid', 'box'), default='centroid',
+                        help="with --vote-weight: an object's pixels vote for the centroid of its points the window "
+                             "sees, or for the centre of its whole box (the sim's truth), which every piece of it "
+                             "agrees on")
     parser.add_argument('--touching-push', type=float, default=0.0,
                         help='weight of the push hinge over touching same-class instances (gf.losses.touching_pairs)')
     parser.add_argument('--direct-assignment', type=float, nargs='?', const=1.0, default=0.0,
@@ -179,6 +195,8 @@ def main():
     args = parser.parse_args()
     if not 0.0 <= args.polish < 1.0:
         parser.error('--polish is a share of the budget: at least 0 and below 1')
+    if args.vote_target == 'box' and args.vote_weight <= 0:
+        parser.error('--vote-target box needs --vote-weight > 0 (without it the vote loss is off)')
     if args.room_vote and args.vote_weight <= 0:
         parser.error('--room-vote needs --vote-weight > 0 (without it the vote loss is off)')
     if args.sweep_depth > 0 and not args.posed:
@@ -192,7 +210,8 @@ def main():
     torch.manual_seed(args.seed)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    train = SimDataset(args.train, args.mode, args.pseudo_labels)
+    train = SimDataset(args.train, args.mode, args.pseudo_labels, box_centres=args.vote_target == 'box')
+    splits = training_splits(train.manifest)
     val = SimDataset(args.val, args.mode)
     assert train.split == 'train' and val.split == 'val', 'train and val must come from their own splits'
     selection = range(max(0, len(val) - args.val_windows), len(val))
@@ -267,7 +286,7 @@ def main():
                 l_vote = torch.zeros(())
                 if args.vote_weight > 0 and votes is not None:
                     l_vote = vote_loss(votes, batch['points'], batch['depth'], batch['instance'],
-                                       ROOM_VOTE if args.room_vote else None)
+                                       ROOM_VOTE if args.room_vote else None, batch.get('box_centres'))
                 l_room = (room_gate_loss(room_logits, batch['instance'], balanced=not args.gate_per_pixel)
                           if room_logits is not None else torch.zeros(()))
                 l_direct = (LAMBDA_PULL * pull + LAMBDA_PUSH * push + args.vote_weight * l_vote + l_assignment
@@ -326,6 +345,7 @@ def main():
     summary = {'mode': args.mode, 'rendered_losses': not args.no_rendered, 'steps': step,
                'minutes': (time.perf_counter() - started) / 60,
                'threads': args.threads, 'device': args.device, 'train_windows': len(train),
+               'train_splits': splits,
                'val_windows': args.val_windows,
                'best': best, 'final': metrics, 'parameters': parameter_count(model),
                'args': vars(args)}

@@ -31,10 +31,15 @@ def load_png(path):
 class SimDataset(torch.utils.data.Dataset):
     """One item = one scene's window of V views."""
 
-    def __init__(self, root, mode='rgbd', pseudo_labels=None):
+    def __init__(self, root, mode='rgbd', pseudo_labels=None, box_centres=False):
         self.root = Path(root)
         # Instance ids from train/make_pseudo_labels.py instead of the ground truth.
         self.pseudo_labels = Path(pseudo_labels) if pseudo_labels else None
+        if box_centres and self.pseudo_labels:
+            raise ValueError('box centres need the ground-truth instance ids, not pseudo labels')
+        # Per pixel, the centre of its object's whole box (`box_centre_map`): the vote target that
+        # every piece of an object agrees on, however little of it a window sees.
+        self.box_centres = box_centres
         self.manifest = json.loads((self.root / 'dataset.json').read_text())
         self.scenes = list(self.manifest['scenes'])
         self.mode = mode
@@ -72,7 +77,24 @@ class SimDataset(torch.utils.data.Dataset):
         }
         item['points'] = torch.from_numpy(world_points(depth, np.stack(intrinsics), np.stack(poses)))
         item['cameras'] = torch.from_numpy(world_cameras(np.stack(poses)))
+        if self.box_centres:
+            item['box_centres'] = torch.from_numpy(
+                box_centre_map(np.stack(instance), cameras['objects'], np.stack(poses)))
         return item
+
+
+def box_centre_map(instance, objects, poses, scale=POINTS_SCALE):
+    """[V,3,H,W]: per pixel, the centre of its object's world box (`bounds_min` / `bounds_max` of
+    cameras.json) in the frame of `world_points`; zero on the room (instance 0) and on ids no object
+    lists."""
+    centre = poses[:, :3, 3].mean(axis=0)
+    lookup = np.zeros((int(instance.max()) + 1, 3), np.float32)
+    for o in objects:
+        k = int(o['instance_id'])
+        if 0 < k < len(lookup):
+            box_centre = (np.asarray(o['bounds_min'], np.float64) + np.asarray(o['bounds_max'], np.float64)) / 2
+            lookup[k] = (box_centre - centre) / scale
+    return np.ascontiguousarray(lookup[instance].transpose(0, 3, 1, 2))
 
 
 def world_cameras(poses, scale=POINTS_SCALE):

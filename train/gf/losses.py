@@ -6,7 +6,8 @@ L_pull = mean_n ‖e_n − ē_{y_n}‖, L_push = mean_{k≠l} [m − ‖ē_k −
 (instance 0) are one background instance. Depth: L1 on log depth over valid pixels.
 
 Centre votes (an addition to §5.3, training only, `vote_loss`): every object pixel's vote should be
-its instance's 3D centroid in the window; optionally (`room_target`) every wall and floor pixel's
+its instance's 3D centroid in the window, or (`box_centres`) the centre of the object's whole box, which
+every piece of it agrees on however little of it the window sees; optionally (`room_target`) every wall and floor pixel's
 vote a fixed point below the floor, where no object's centre can be.
 """
 
@@ -135,14 +136,16 @@ def dice_focal(p, one_hot):
     return dice, focal
 
 
-def vote_loss(votes, points, depth, instance, room_target=None):
+def vote_loss(votes, points, depth, instance, room_target=None, box_centres=None):
     """Centre-vote supervision (not in the paper; the votes head is this project's): votes [B,V,3,h,w]
     at half resolution, points [B,V,3,H,W] (the model's scaled world XYZ input), depth [B,V,H,W] and
     instance [B,V,H,W] at full resolution. Each object's target is the mean of its valid points over
     the window's views; the loss is ‖vote − target‖ averaged per object, then over objects, on
     half-resolution pixels whose 2×2 block is one object. By default the room gets no target (its
     centroid lies among the objects'); with `room_target` (3 values) its pixels vote for that
-    point and the room counts as one more object in the mean."""
+    point and the room counts as one more object in the mean. With `box_centres` ([B,V,3,H,W], per
+    pixel its object's box centre in the points' frame, gf.data.box_centre_map) an object's target is
+    its box's centre instead of its visible points' centroid."""
     losses = []
     for b in range(votes.shape[0]):
         labels = instance[b]
@@ -154,8 +157,13 @@ def vote_loss(votes, points, depth, instance, room_target=None):
         vote = votes[b].permute(0, 2, 3, 1)  # V,h,w,3
         xyz = points[b].permute(0, 2, 3, 1)  # V,H,W,3
         per_object = []
+        if box_centres is None:
+            targets, counted = xyz, valid
+        else:
+            # Every pixel of an object holds its box centre: depth need not be valid.
+            targets, counted = box_centres[b].permute(0, 2, 3, 1), torch.ones_like(valid)
         for k in torch.unique(half[pure & (half > 0)]):
-            target = xyz[(labels == k) & valid].mean(0)
+            target = targets[(labels == k) & counted].mean(0)
             per_object.append((vote[pure & (half == k)] - target).norm(dim=1).mean())
         room = pure & (half == 0)
         if room_target is not None and room.any():
