@@ -132,6 +132,17 @@ def checkpoint_choice(path, summary):
     return step, seconds / 60, 'picked among its snapshots by ARI on the val_selection windows'
 
 
+def machine_note(summary):
+    """' (CPU, seed, sessions)' as far as the run's summary records them (runs before 2026-12-06 do not)."""
+    parts = [summary.get('cpu')]
+    if 'seed' in summary:
+        parts.append(f"seed {summary['seed']}")
+    if summary.get('sessions', 1) > 1:
+        parts.append(f"resumed over {summary['sessions']} sessions")
+    parts = [part for part in parts if part]
+    return f" ({', '.join(parts)})" if parts else ''
+
+
 def checkpoint_provenance(args, model, summary, guided):
     """The provenance of a model exported from a training run's checkpoint, up to its benchmarks."""
     step, minutes, picked = checkpoint_choice(args.model, summary)
@@ -171,7 +182,7 @@ def checkpoint_provenance(args, model, summary, guided):
         head += f'; plane sweep over the views\' intrinsics and TF poses{sweep}'
     device = summary.get('device', 'cpu')
     origin = run_origin(train_args)
-    trained_on = (f"{summary['threads']} CPU thread(s)" if device == 'cpu'
+    trained_on = (f"{summary['threads']} CPU thread(s){machine_note(summary)}" if device == 'cpu'
                   else f'a GPU ({device}; the steps are a 2-core CPU budget, see train/ in the README)')
     if guided:
         after_training = bool(args.guided) or not trained_guided(train_args)

@@ -13,7 +13,10 @@ Fine-tuning a shipped model's instance head with the upsampling it ships with, e
 models/<name>.onnx --guided 0.06,0.05 --stages 0 1 0 --decouple` (README, Training).
 
 Writes <out>/model.pt (best val ARI), <out>/log.csv (step, stage, losses, seconds) and
-<out>/summary.json. CPU is enough (threads: --threads, default 2); `--device cuda` runs the same recipe
+<out>/summary.json. A run longer than a session: `--session-minutes M` stops it cleanly after M minutes
+with its state in <out>/resume.pt (also written every --checkpoint-every steps, so a cut run loses at
+most that many), and the same command with `--resume` continues it, taking the steps an uncut run
+takes (gf.resume). CPU is enough (threads: --threads, default 2); `--device cuda` runs the same recipe
 (steps, batch, schedule) on a GPU, faster, with validation still on the CPU.
 """
 
@@ -36,6 +39,7 @@ from gf.losses import (  # noqa: E402
 from gf.model import GroupForwardMini, parameter_count  # noqa: E402
 from gf.recover import model_from_file  # noqa: E402
 from eval_recon import evaluate, guided_widths  # noqa: E402
+from gf import resume  # noqa: E402
 
 
 def stage_of(fraction, split, polish=0.0):
@@ -90,6 +94,16 @@ def training_splits(manifest):
         except (OSError, ValueError, KeyError):
             splits.append('train')
     return splits or [manifest.get('split', 'train')]
+
+
+def cpu_name():
+    """The CPU's model name and whether it has native bfloat16 (what sets a run's steps per minute)."""
+    try:
+        info = Path('/proc/cpuinfo').read_text()
+    except OSError:
+        return None
+    name = next((line.split(':', 1)[1].strip() for line in info.splitlines() if line.startswith('model name')), None)
+    return name and f"{name}{', avx512_bf16' if 'avx512_bf16' in info else ''}"
 
 
 def evaluate_on_cpu(model, val, selection):
@@ -188,6 +202,16 @@ def main():
                         help='with --window-weights: window drawn with probability ∝ 1 + this × (1 − its ARI)')
     parser.add_argument('--snapshot-every', type=int, default=0,
                         help='also keep the weights every N steps (snapshot_<step>.pt), for equal-step comparisons')
+    parser.add_argument('--checkpoint-every', type=int, default=200,
+                        help='write <out>/resume.pt every N steps: the state --resume continues from (gf.resume)')
+    parser.add_argument('--resume', action='store_true',
+                        help='continue the run in --out from its resume.pt (the same arguments; start afresh when '
+                             'there is none), e.g. the next session running the same command')
+    parser.add_argument('--stop-at-step', type=int, default=0,
+                        help='stop after this step with the state written, to be continued with --resume')
+    parser.add_argument('--session-minutes', type=float, default=0.0,
+                        help='stop after this many minutes of this process (the state written), so a run longer '
+                             'than a session ends cleanly and the next session resumes it')
     parser.add_argument('--bf16', action='store_true',
                         help='run the forward pass under bfloat16 autocast (weights, optimizer and losses stay '
                              'float32): 1.3-1.5x the steps per minute on a CPU with AVX-512 BF16')
@@ -230,14 +254,14 @@ def main():
     model.to(device)
     print(f'GroupForward-mini ({args.mode}): {parameter_count(model) / 1e6:.2f} M parameters; '
           f'{len(train)} train windows, {len(val)} val windows')
-    sampler = None
+    weights = None
     if args.window_weights:
         weights = window_weights(args.window_weights, train.scenes, args.hard_weight)
-        sampler = torch.utils.data.WeightedRandomSampler(weights, len(train), replacement=True,
-                                                         generator=torch.Generator().manual_seed(args.seed))
         print(f'windows drawn by difficulty: the hardest tenth is {hard_share(weights):.0%} of the draws')
-    loader = torch.utils.data.DataLoader(train, batch_size=args.batch, shuffle=sampler is None, sampler=sampler,
-                                         drop_last=True, num_workers=0)
+    order = resume.EpochOrder(len(train), args.seed, weights)
+    # Its own generator for the workers' base seed, so making a loader draws nothing from torch's.
+    loader = torch.utils.data.DataLoader(train, batch_size=args.batch, sampler=order, drop_last=True, num_workers=0,
+                                         generator=torch.Generator().manual_seed(args.seed))
     optimizers = {
         1: torch.optim.AdamW(model.reconstruction_parameters(), lr=args.lr, weight_decay=1e-4),
         2: torch.optim.AdamW(model.instance_parameters(), lr=args.lr, weight_decay=1e-4),
@@ -245,17 +269,42 @@ def main():
         4: torch.optim.AdamW(model.instance_parameters(), lr=args.lr, weight_decay=1e-4),
     }
     budget = args.minutes * 60.0
-    started = time.perf_counter()
-    last_eval = started
     best = {'ari': -1.0}
-    step = 0
-    log = open(out / 'log.csv', 'w', newline='')
-    writer = csv.writer(log)
-    writer.writerow(['step', 'stage', 'seconds', 'loss', 'depth', 'pull', 'push', 'render', 'photometric', 'vote',
-                     'assignment', 'room'])
+    step, spent = 0, 0.0
     generator = torch.Generator(device=device).manual_seed(args.seed)
-    done = False
+    state = resume.load(out) if args.resume else None
+    if state is not None:
+        changed = resume.changed_arguments(state['args'], vars(args))
+        if changed:
+            parser.error(f'{out / resume.CHECKPOINT} was written by a run with other arguments: {", ".join(changed)}')
+        model.load_state_dict(state['model'])
+        for k, optimizer in optimizers.items():
+            optimizer.load_state_dict(state['optimizers'][k])
+        step, spent, best = state['step'], state['seconds'], state['best']
+        order.epoch, order.skip = state['epoch'], state['batches_in_epoch'] * args.batch
+        resume.restore_random_states(state['random'], generator)
+        print(f'resumed at step {step} ({spent / 60:.1f} min of training) from {out / resume.CHECKPOINT}')
+    elif args.resume:
+        print(f'nothing to resume in {out}: starting afresh')
+    # The training time so far counts: a budget in minutes and the curriculum go on where they stopped.
+    session_started = time.perf_counter()
+    started = session_started - spent
+    last_eval = session_started
+    log = open(out / 'log.csv', 'a' if state is not None else 'w', newline='')
+    writer = csv.writer(log)
+    if state is None:
+        writer.writerow(['step', 'stage', 'seconds', 'loss', 'depth', 'pull', 'push', 'render', 'photometric',
+                         'vote', 'assignment', 'room'])
+
+    def checkpoint():
+        resume.save(out, model_state=cpu_state(model), optimizers=optimizers, step=step,
+                    seconds=time.perf_counter() - started, best=best, epoch=epoch,
+                    batches_in_epoch=batches_in_epoch, generator=generator, args=vars(args),
+                    sessions=1 + (state['sessions'] if state is not None else 0))
+
+    done = stopped = False
     while not done:
+        epoch, batches_in_epoch = order.epoch, order.skip // args.batch
         for batch in loader:
             batch = {key: value.to(device) for key, value in batch.items()}
             # Tensors the model and the losses make on the fly land beside the weights.
@@ -317,6 +366,7 @@ def main():
                 torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
                 optimizer.step()
                 step += 1
+                batches_in_epoch += 1
                 if args.snapshot_every and step % args.snapshot_every == 0:
                     torch.save(cpu_state(model), out / f'snapshot_{step}.pt')
                 writer.writerow([step, stage, f'{elapsed:.1f}', f'{loss.item():.5f}', f'{l_depth.item():.5f}',
@@ -330,6 +380,13 @@ def main():
                           f'photometric {l_photo.item():.4f} vote {l_vote.item():.4f} '
                           f'assignment {l_assignment.item():.4f} room {l_room.item():.4f}', flush=True)
                 now = time.perf_counter()
+                stopped = step == args.stop_at_step or (
+                    args.session_minutes > 0 and now - session_started >= args.session_minutes * 60.0)
+                if stopped or (args.checkpoint_every and step % args.checkpoint_every == 0):
+                    checkpoint()
+                if stopped:
+                    done = True
+                    break
                 if stage >= 2 and now - last_eval >= args.eval_every * 60.0:
                     last_eval = now
                     metrics = evaluate_on_cpu(model, val, selection)
@@ -337,6 +394,12 @@ def main():
                     if metrics['ari'] > best['ari']:
                         best = dict(metrics, step=step, minutes=elapsed / 60)
                         torch.save(cpu_state(model), out / 'model.pt')
+    log.close()
+    if stopped:
+        print(f'stopped at step {step} ({(time.perf_counter() - started) / 60:.1f} min of training); '
+              f'the same command with --resume continues it', flush=True)
+        return
+    checkpoint()
     metrics = evaluate_on_cpu(model, val, selection)
     print(f'final val: {metrics}', flush=True)
     if metrics['ari'] > best['ari']:
@@ -344,13 +407,13 @@ def main():
         torch.save(cpu_state(model), out / 'model.pt')
     summary = {'mode': args.mode, 'rendered_losses': not args.no_rendered, 'steps': step,
                'minutes': (time.perf_counter() - started) / 60,
-               'threads': args.threads, 'device': args.device, 'train_windows': len(train),
+               'threads': args.threads, 'device': args.device, 'cpu': cpu_name(), 'seed': args.seed,
+               'sessions': 1 + (state['sessions'] if state is not None else 0), 'train_windows': len(train),
                'train_splits': splits,
                'val_windows': args.val_windows,
                'best': best, 'final': metrics, 'parameters': parameter_count(model),
                'args': vars(args)}
     (out / 'summary.json').write_text(json.dumps(summary, indent=2))
-    log.close()
     print(json.dumps(summary['best']))
 
 

@@ -6,7 +6,7 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from export_recon import checkpoint_choice, run_origin, trained_guided  # noqa: E402
+from export_recon import checkpoint_choice, run_origin, trained_guided, machine_note  # noqa: E402
 
 
 def write_run(folder, args, steps, minutes):
@@ -48,3 +48,10 @@ def test_a_snapshot_is_named_with_its_own_step_and_time(tmp_path):
     assert checkpoint_choice(str(tmp_path / 'snapshot_2000.pt'), summary) == (
         2000, 10.0, 'picked among its snapshots by ARI on the val_selection windows')
     assert checkpoint_choice(str(tmp_path / 'model.pt'), summary) == (4000, 20.0, 'picked by ARI on 24 val windows')
+
+
+def test_the_machine_seed_and_sessions_are_named_where_the_summary_has_them():
+    assert machine_note({}) == ''
+    note = machine_note({'cpu': 'AMD EPYC, avx512_bf16', 'seed': 0, 'sessions': 1})
+    assert note == ' (AMD EPYC, avx512_bf16, seed 0)'
+    assert machine_note({'cpu': None, 'seed': 3, 'sessions': 2}) == ' (seed 3, resumed over 2 sessions)'
