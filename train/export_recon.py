@@ -187,9 +187,9 @@ def checkpoint_provenance(args, model, summary, guided):
     if guided:
         after_training = bool(args.guided) or not trained_guided(train_args)
         head += f'; {guided_note(*guided, after_training=after_training, points=model.mode == "rgbd")}'
-    splits = ' + '.join(dict.fromkeys(summary.get('train_splits') or ['train']))
-    plural = 's' if '+' in splits else ''
-    return (f"{origin} on groupforward-sim {splits} split{plural} ({summary['train_windows']} windows x 4 views, 128x96), "
+    splits = list(dict.fromkeys(summary.get('train_splits') or ['train']))
+    named = f"{' + '.join(splits)} split{'s' if len(splits) > 1 else ''}"
+    return (f"{origin} on groupforward-sim {named} ({summary['train_windows']} windows x 4 views, 128x96), "
             f"checkpoint of step {step} ({minutes:.0f} min) of a {summary['steps']}-step, "
             f"{summary['minutes']:.0f}-min run on {trained_on}, {picked}; {head}; "
             f"{losses}{'; pseudo instance labels' if train_args.get('pseudo_labels') else ''}")

@@ -13,11 +13,12 @@ SHARED = ('format', 'version', 'views', 'width', 'height', 'fov_x_deg', 'depth_s
 
 def merge(out, parts):
     os.makedirs(out, exist_ok=True)
-    manifest, scenes = None, []
+    manifest, scenes, splits = None, [], []
     for part in parts:
         m = json.load(open(os.path.join(part, 'dataset.json')))
         if m['split'] not in TRAINING_SPLITS:
             raise SystemExit(f'{part}: split {m["split"]!r} is no training split ({", ".join(TRAINING_SPLITS)})')
+        splits.append(m['split'])
         if manifest is None:
             manifest = dict(m)
         elif any(m[k] != manifest[k] for k in SHARED):
@@ -27,7 +28,8 @@ def merge(out, parts):
             if not os.path.lexists(link):
                 os.symlink(os.path.abspath(os.path.join(part, scene)), link)
             scenes.append(scene)
-    manifest.update(split='train', scenes=scenes, samples=len(scenes), merged_from=list(parts))
+    # The parts' own splits, for the provenance of a model trained on the merge (train_recon.py).
+    manifest.update(split='train', scenes=scenes, samples=len(scenes), merged_from=list(parts), merged_splits=splits)
     with open(os.path.join(out, 'dataset.json'), 'w') as f:
         json.dump(manifest, f, indent=1)
     return len(scenes)

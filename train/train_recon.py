@@ -84,18 +84,6 @@ def float32(outputs):
     return tuple(None if output is None else output.float() for output in outputs)
 
 
-def training_splits(manifest):
-    """The sim splits a training dataset holds (a merged one's parts', train/merge_datasets.py), for
-    the exported model's provenance; read at the start, so a part removed later costs nothing."""
-    splits = []
-    for part in manifest.get('merged_from') or []:
-        try:
-            splits.append(json.loads((Path(part) / 'dataset.json').read_text())['split'])
-        except (OSError, ValueError, KeyError):
-            splits.append('train')
-    return splits or [manifest.get('split', 'train')]
-
-
 def cpu_name():
     """The CPU's model name and whether it has native bfloat16 (what sets a run's steps per minute)."""
     try:
@@ -235,7 +223,8 @@ def main():
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     train = SimDataset(args.train, args.mode, args.pseudo_labels, box_centres=args.vote_target == 'box')
-    splits = training_splits(train.manifest)
+    # The sim splits it holds (a merged dataset's parts', train/merge_datasets.py), for the provenance.
+    splits = train.manifest.get('merged_splits') or [train.split]
     val = SimDataset(args.val, args.mode)
     assert train.split == 'train' and val.split == 'val', 'train and val must come from their own splits'
     selection = range(max(0, len(val) - args.val_windows), len(val))
@@ -286,6 +275,7 @@ def main():
         print(f'resumed at step {step} ({spent / 60:.1f} min of training) from {out / resume.CHECKPOINT}')
     elif args.resume:
         print(f'nothing to resume in {out}: starting afresh')
+    sessions = 1 + (state['sessions'] if state is not None else 0)
     # The training time so far counts: a budget in minutes and the curriculum go on where they stopped.
     session_started = time.perf_counter()
     started = session_started - spent
@@ -300,7 +290,7 @@ def main():
         resume.save(out, model_state=cpu_state(model), optimizers=optimizers, step=step,
                     seconds=time.perf_counter() - started, best=best, epoch=epoch,
                     batches_in_epoch=batches_in_epoch, generator=generator, args=vars(args),
-                    sessions=1 + (state['sessions'] if state is not None else 0))
+                    sessions=sessions)
 
     done = stopped = False
     while not done:
@@ -408,7 +398,7 @@ def main():
     summary = {'mode': args.mode, 'rendered_losses': not args.no_rendered, 'steps': step,
                'minutes': (time.perf_counter() - started) / 60,
                'threads': args.threads, 'device': args.device, 'cpu': cpu_name(), 'seed': args.seed,
-               'sessions': 1 + (state['sessions'] if state is not None else 0), 'train_windows': len(train),
+               'sessions': sessions, 'train_windows': len(train),
                'train_splits': splits,
                'val_windows': args.val_windows,
                'best': best, 'final': metrics, 'parameters': parameter_count(model),

@@ -6,9 +6,9 @@ L_pull = mean_n ‖e_n − ē_{y_n}‖, L_push = mean_{k≠l} [m − ‖ē_k −
 (instance 0) are one background instance. Depth: L1 on log depth over valid pixels.
 
 Centre votes (an addition to §5.3, training only, `vote_loss`): every object pixel's vote should be
-its instance's 3D centroid in the window, or (`box_centres`) the centre of the object's whole box, which
-every piece of it agrees on however little of it the window sees; optionally (`room_target`) every wall and floor pixel's
-vote a fixed point below the floor, where no object's centre can be.
+its instance's 3D centroid in the window, or (`box_centres`) the centre of the object's whole box,
+which every piece of it agrees on however little of it the window sees; optionally (`room_target`)
+every wall and floor pixel's vote a fixed point below the floor, where no object's centre can be.
 """
 
 import torch
@@ -157,13 +157,12 @@ def vote_loss(votes, points, depth, instance, room_target=None, box_centres=None
         vote = votes[b].permute(0, 2, 3, 1)  # V,h,w,3
         xyz = points[b].permute(0, 2, 3, 1)  # V,H,W,3
         per_object = []
-        if box_centres is None:
-            targets, counted = xyz, valid
-        else:
-            # Every pixel of an object holds its box centre: depth need not be valid.
-            targets, counted = box_centres[b].permute(0, 2, 3, 1), torch.ones_like(valid)
         for k in torch.unique(half[pure & (half > 0)]):
-            target = targets[(labels == k) & counted].mean(0)
+            if box_centres is None:
+                target = xyz[(labels == k) & valid].mean(0)
+            else:
+                # Every pixel of an object holds its box centre: one pixel's will do.
+                target = box_centres[b].permute(0, 2, 3, 1)[labels == k][0]
             per_object.append((vote[pure & (half == k)] - target).norm(dim=1).mean())
         room = pure & (half == 0)
         if room_target is not None and room.any():

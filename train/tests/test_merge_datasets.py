@@ -27,6 +27,7 @@ def test_training_splits_merge_into_one_manifest_of_their_scenes(tmp_path):
     assert merge(tmp_path / 'both', [str(a), str(b)]) == 3
     manifest = json.loads((tmp_path / 'both' / 'dataset.json').read_text())
     assert manifest['split'] == 'train' and manifest['samples'] == 3
+    assert manifest['merged_splits'] == ['train', 'layouts_train']
     assert (tmp_path / 'both' / 'layouts_train_00000' / 'cameras.json').exists()
 
 
