@@ -31,6 +31,8 @@ const HEADER: &str = "\
 #                     to it
 #   smallest_depth_m  smallest shorter horizontal side (the same classes); a face with a wall
 #                     closer behind it is the object's back
+#   typical_length_m  median longer horizontal side (the same classes); an object seen in part
+#                     grows to it where no camera saw past its end
 #   largest_side_m    largest longer horizontal side; touching pieces named alike fold only while
 #                     together they are at most 1.5 times as long
 #   stands_on_floor   every object of the class stands on the floor; a box seen floating above
@@ -77,13 +79,15 @@ fn training_boxes(rooms: u64) -> BTreeMap<u16, Vec<OrientedBox>> {
 fn measured_class(class: &ObjectClass, boxes: &[OrientedBox]) -> VocabularyClass {
     let mut depths: Vec<f64> = boxes.iter().map(|b| b.size.x.min(b.size.y)).collect();
     depths.sort_by(f64::total_cmp);
-    let sides = boxes.iter().map(|b| b.size.x.max(b.size.y));
+    let mut lengths: Vec<f64> = boxes.iter().map(|b| b.size.x.max(b.size.y)).collect();
+    lengths.sort_by(f64::total_cmp);
     let faced = has_flat_face(class) && !depths.is_empty();
     VocabularyClass {
         name: class.name.to_owned(),
         typical_depth_m: faced.then(|| centimetres(depths[depths.len() / 2])),
         smallest_depth_m: faced.then(|| centimetres(depths[0])),
-        largest_side_m: sides.reduce(f64::max).map(centimetres),
+        typical_length_m: faced.then(|| centimetres(lengths[lengths.len() / 2])),
+        largest_side_m: lengths.last().copied().map(centimetres),
         stands_on_floor: !boxes.is_empty()
             && boxes
                 .iter()
@@ -153,6 +157,15 @@ mod tests {
         }
         for name in ["trash bin", "lamp", "plant", "pillow"] {
             assert_eq!(class(name).typical_depth_m, None, "{name}");
+            assert_eq!(class(name).typical_length_m, None, "{name}");
+        }
+        // The typical length of a faced class lies between its depth and its largest side.
+        for c in file.classes.iter().filter(|c| c.typical_depth_m.is_some()) {
+            let (depth, length) = (c.typical_depth_m.unwrap(), c.typical_length_m);
+            assert!(
+                length.is_some_and(|l| depth <= l && c.largest_side_m.is_some_and(|s| l <= s)),
+                "{c:?}"
+            );
         }
         // Every class has a largest side; furniture stands on the floor, things on it do not.
         assert!(file.classes.iter().all(|c| c.largest_side_m.is_some()));

@@ -1203,6 +1203,10 @@ fn save_then_load_gives_the_identical_map_and_graph() {
         loaded.instances[0].range_noise_m,
         map.instances[0].range_noise_m
     );
+    // And where the views saw free space past the instances' ends (a box seen in part grows
+    // only where none was seen).
+    assert!(map.instances.iter().any(|i| !i.seen_free.is_empty()));
+    assert_eq!(loaded.instances[0].seen_free, map.instances[0].seen_free);
 }
 
 #[test]

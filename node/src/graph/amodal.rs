@@ -93,6 +93,186 @@ pub fn down_to_floor(fitted: OrientedBox, floor: f64) -> OrientedBox {
     standing
 }
 
+/// Objects seen in part along their length: a desk whose far end the camera never had in view, a
+/// sofa half hidden behind a table. The box fitted to what was seen is a piece of the object
+/// (`eval map` counts most of its fusion losses there). Where the box is much shorter than its
+/// name's typical length, it grows to it along its length, but only where no view saw past its end
+/// ([`crate::graph::Instance::seen_free`]: free space just beyond an end means the object ends
+/// there) and no other instance's points stand (a neighbour in a row, a wall). A box at least this
+/// share of the typical length is left as it is.
+pub const SEEN_IN_PART_SHARE: f64 = 0.6;
+/// A box grows no closer than this (m) to a point that blocks it (one within its width and
+/// height: a wall just behind it does not block it along its length).
+const STOP_SHORT_M: f64 = 0.1;
+/// The side across an object's length is within this factor of its name's typical depth.
+const DEPTH_MARGIN: f64 = 1.5;
+/// Two axes whose room makes up shares of their missing lengths this close have the same room.
+const ROOM_SHARE_TIE: f64 = 0.05;
+/// Growth under this (m) is none: the points' own rounding.
+const MIN_GROWTH_M: f64 = 0.01;
+
+/// `fitted` grown along its length to `length` where it is an object seen in part (see
+/// [`SEEN_IN_PART_SHARE`]: both horizontal sides under that share of `length`), each end no
+/// further than the nearest of the `blocked` points beyond it (seen free, or another object's);
+/// half the missing length on either end where both have room. Its length is the side along
+/// which more of the missing length has room, or where both have as much, the side whose other
+/// side is nearer the name's `depth` (the longer without one), so a desk seen across its width
+/// grows along its length. Otherwise `fitted` as it is.
+pub fn grown_to_length(
+    fitted: OrientedBox,
+    blocked: &[Vec3],
+    length: f64,
+    depth: Option<f64>,
+) -> OrientedBox {
+    let size = fitted.size;
+    if !(fitted.centre.is_finite() && size.is_finite() && length.is_finite() && length > 0.0) {
+        return fitted;
+    }
+    if size.x.max(size.y) >= SEEN_IN_PART_SHARE * length {
+        return fitted;
+    }
+    let depth = depth.filter(|d| *d > 0.0);
+    let growth = |along_x: bool| {
+        // A face's thin side is its depth, the face completion's to grow, never its length.
+        let (side, across) = if along_x {
+            (size.x, size.y)
+        } else {
+            (size.y, size.x)
+        };
+        let face = depth.is_some_and(|d| side < THIN_SHARE * d && across > side);
+        // The side across the length is the object's depth, seen whole more often than not: a
+        // monitor's width is no depth (its screen's thickness is not its length), and a trash
+        // bin named sofa is far shallower than any sofa.
+        let no_depth =
+            depth.is_some_and(|d| across > DEPTH_MARGIN * d || across < d / DEPTH_MARGIN);
+        (!face && !no_depth).then(|| growth_along(&fitted, blocked, along_x, length))
+    };
+    let by_depth = match depth {
+        Some(d) => (size.y / d).ln().abs() <= (size.x / d).ln().abs(),
+        None => size.x >= size.y,
+    };
+    // The axis along which views saw less past the ends (more of the missing length has room);
+    // where both have the same, the one whose other side is nearer the name's depth.
+    let chosen = match (growth(true), growth(false)) {
+        (Some(x), Some(y)) if (x.share - y.share).abs() >= ROOM_SHARE_TIE => {
+            if x.share > y.share {
+                x
+            } else {
+                y
+            }
+        }
+        (Some(x), Some(y)) => {
+            if by_depth {
+                x
+            } else {
+                y
+            }
+        }
+        (Some(only), None) | (None, Some(only)) => only,
+        (None, None) => return fitted,
+    };
+    chosen.applied_to(fitted)
+}
+
+/// How a box grows along one horizontal axis: by `ahead` along the axis' direction and `behind`
+/// against it.
+#[derive(Debug, Clone, Copy)]
+struct Growth {
+    along_x: bool,
+    ahead: f64,
+    behind: f64,
+    /// The share of the missing length the growth makes up.
+    share: f64,
+}
+
+impl Growth {
+    fn total(&self) -> f64 {
+        self.ahead + self.behind
+    }
+
+    /// `fitted` grown so (unchanged under [`MIN_GROWTH_M`]).
+    fn applied_to(&self, fitted: OrientedBox) -> OrientedBox {
+        if self.total() < MIN_GROWTH_M {
+            return fitted;
+        }
+        let axis = length_axis(&fitted, self.along_x);
+        let mut grown = fitted;
+        let centre = fitted.centre.truncate() + axis * ((self.ahead - self.behind) / 2.0);
+        grown.centre = DVec3::new(centre.x, centre.y, fitted.centre.z);
+        if self.along_x {
+            grown.size.x += self.total();
+        } else {
+            grown.size.y += self.total();
+        }
+        grown
+    }
+}
+
+/// The unit ground-plane axis along `fitted`'s x side (`along_x`) or its y side.
+fn length_axis(fitted: &OrientedBox, along_x: bool) -> DVec2 {
+    let (c, s) = (fitted.yaw.cos(), fitted.yaw.sin());
+    if along_x {
+        DVec2::new(c, s)
+    } else {
+        DVec2::new(-s, c)
+    }
+}
+
+/// How `fitted` grows to `length` along its x side (`along_x`) or its y side: each end up to
+/// the room [`free_room`] leaves it, half the missing length each where both have room.
+fn growth_along(fitted: &OrientedBox, blocked: &[Vec3], along_x: bool, length: f64) -> Growth {
+    let axis = length_axis(fitted, along_x);
+    let (side, across) = if along_x {
+        (fitted.size.x, fitted.size.y)
+    } else {
+        (fitted.size.y, fitted.size.x)
+    };
+    let missing = length - side;
+    let room = |sign: f64| free_room(fitted, blocked, axis * sign, side, across, missing);
+    let (ahead, behind) = (room(1.0), room(-1.0));
+    let half = missing / 2.0;
+    let (ahead, behind) = if ahead >= half && behind >= half {
+        (half, half)
+    } else if ahead < behind {
+        (ahead, behind.min(missing - ahead))
+    } else {
+        (ahead.min(missing - behind), behind)
+    };
+    Growth {
+        along_x,
+        ahead,
+        behind,
+        share: (ahead + behind) / missing.max(f64::EPSILON),
+    }
+}
+
+/// How far (m, up to `missing`) `fitted` may grow beyond its end in direction `towards` (unit,
+/// along its `side`-long axis, `across` wide) before it comes within [`STOP_SHORT_M`] of a
+/// `blocked` point.
+fn free_room(
+    fitted: &OrientedBox,
+    blocked: &[Vec3],
+    towards: DVec2,
+    side: f64,
+    across: f64,
+    missing: f64,
+) -> f64 {
+    let normal = DVec2::new(-towards.y, towards.x);
+    blocked
+        .iter()
+        .map(|p| p.as_dvec3() - fitted.centre)
+        .filter(|d| {
+            d.is_finite()
+                && d.truncate().dot(normal).abs() <= across / 2.0
+                && d.z.abs() <= fitted.size.z / 2.0
+        })
+        .map(|d| d.truncate().dot(towards) - side / 2.0)
+        .filter(|&beyond| beyond > 0.0)
+        .fold(missing, |room, beyond| {
+            room.min((beyond - STOP_SHORT_M).max(0.0))
+        })
+}
+
 /// `fitted` with its thinner horizontal side `extent` long and its centre moved by `shift` in
 /// the ground plane: a face completed to the object behind it.
 pub(super) fn deepened(fitted: OrientedBox, shift: DVec2, extent: f64) -> OrientedBox {
@@ -284,5 +464,138 @@ mod tests {
             lowest > 2.0 * super::super::walls::FLOOR_TOP_M,
             "an object's top {lowest:.3} m up"
         );
+    }
+
+    /// A desk seen in part: 0.5 m of its length along x (yaw `yaw`), its whole 0.69 m depth.
+    fn desk_piece(yaw: f64) -> OrientedBox {
+        OrientedBox {
+            centre: DVec3::new(2.0, 1.0, 0.375),
+            size: DVec3::new(0.5, 0.69, 0.75),
+            yaw,
+        }
+    }
+
+    /// A point `beyond` m past the desk piece's end in direction `sign` along its length.
+    fn past_end(piece: &OrientedBox, sign: f64, beyond: f64) -> Vec3 {
+        let axis = DVec2::new(piece.yaw.cos(), piece.yaw.sin()) * sign;
+        let p = piece.centre.truncate() + axis * (piece.size.x / 2.0 + beyond);
+        DVec3::new(p.x, p.y, 0.7).as_vec3()
+    }
+
+    #[test]
+    fn an_object_seen_in_part_grows_along_its_length_away_from_where_a_view_saw_past_it() {
+        for yaw in [0.0, 0.8, -2.5] {
+            let piece = desk_piece(yaw);
+            let axis = DVec2::new(yaw.cos(), yaw.sin());
+            let end = |b: &OrientedBox, sign: f64| {
+                (b.centre - piece.centre).truncate().dot(axis) + sign * b.size.x / 2.0
+            };
+            // A view saw the floor 0.3 m past the +x end: the desk ends there.
+            let free = [past_end(&piece, 1.0, 0.3)];
+            let grown = grown_to_length(piece, &free, 1.38, Some(0.69));
+            assert!((grown.size.x - 1.38).abs() < 1e-9, "{grown:?}");
+            assert_eq!((grown.size.y, grown.size.z), (0.69, 0.75));
+            assert!(end(&grown, 1.0) <= end(&piece, 1.0) + 0.3 - STOP_SHORT_M + 1e-6);
+            assert!(end(&grown, -1.0) < end(&piece, -1.0) - 0.5, "{grown:?}");
+            // Nobody saw past either end: half the missing length on each.
+            let unseen = grown_to_length(piece, &[], 1.38, Some(0.69));
+            assert!((unseen.size.x - 1.38).abs() < 1e-9);
+            assert!((unseen.centre - piece.centre).length() < 1e-9);
+            // Every end seen right where it is: the piece is the whole object.
+            let across = DVec2::new(-yaw.sin(), yaw.cos());
+            let beside = |sign: f64| {
+                let p = piece.centre.truncate() + across * sign * (piece.size.y / 2.0 + 0.1);
+                DVec3::new(p.x, p.y, 0.7).as_vec3()
+            };
+            let closed = [
+                past_end(&piece, 1.0, 0.1),
+                past_end(&piece, -1.0, 0.1),
+                beside(1.0),
+                beside(-1.0),
+            ];
+            assert_eq!(grown_to_length(piece, &closed, 1.38, Some(0.69)), piece);
+        }
+    }
+
+    #[test]
+    fn free_space_beside_or_above_the_object_does_not_stop_it_and_near_whole_boxes_stay() {
+        let piece = desk_piece(0.0);
+        // Free space 1 m to the side of the +x end, and 1 m above it: not past the end.
+        let beside = past_end(&piece, 1.0, 0.3) + Vec3::new(0.0, 1.0, 0.0);
+        let above = past_end(&piece, 1.0, 0.3) + Vec3::new(0.0, 0.0, 1.0);
+        let grown = grown_to_length(piece, &[beside, above], 1.38, Some(0.69));
+        assert!((grown.centre - piece.centre).length() < 1e-9, "{grown:?}");
+        // A box whose longer side is at least SEEN_IN_PART_SHARE of the typical length is no
+        // piece, however short its other side.
+        let mut whole = piece;
+        whole.size.x = SEEN_IN_PART_SHARE * 1.38 + 0.01;
+        whole.size.y = 0.3;
+        assert_eq!(grown_to_length(whole, &[], 1.38, Some(0.69)), whole);
+    }
+
+    #[test]
+    fn a_piece_seen_across_its_width_grows_along_the_side_that_is_not_its_depth() {
+        // 0.3 m along x, 0.69 along y (the desk's depth): the length is x.
+        let mut piece = desk_piece(0.0);
+        piece.size.x = 0.3;
+        let grown = grown_to_length(piece, &[], 1.38, Some(0.69));
+        assert!(
+            (grown.size.x - 1.38).abs() < 1e-9 && grown.size.y == 0.69,
+            "{grown:?}"
+        );
+        // Without a depth prior, the longer side is the length.
+        let grown = grown_to_length(piece, &[], 1.38, None);
+        assert!(
+            (grown.size.y - 1.38).abs() < 1e-9 && grown.size.x == 0.3,
+            "{grown:?}"
+        );
+    }
+
+    #[test]
+    fn degenerate_boxes_lengths_and_free_points_leave_boxes_finite() {
+        let piece = desk_piece(0.3);
+        let nan = [Vec3::NAN, Vec3::new(f32::INFINITY, 0.0, 0.0)];
+        let grown = grown_to_length(piece, &nan, 1.38, Some(0.69));
+        assert!(
+            grown.centre.is_finite() && grown.size.is_finite(),
+            "{grown:?}"
+        );
+        for length in [0.0, -1.0, f64::NAN, f64::INFINITY] {
+            assert_eq!(grown_to_length(piece, &[], length, Some(0.69)), piece);
+        }
+        let mut flat = piece;
+        flat.size = DVec3::ZERO;
+        let grown = grown_to_length(flat, &[], 1.38, Some(0.0));
+        assert!(
+            grown.centre.is_finite() && grown.size.is_finite(),
+            "{grown:?}"
+        );
+        let mut lost = piece;
+        lost.centre = DVec3::NAN;
+        let kept = grown_to_length(lost, &[], 1.38, None);
+        assert!(kept.centre.is_nan() && kept.size == lost.size);
+    }
+
+    #[test]
+    fn a_box_as_deep_as_no_object_of_its_name_is_no_piece_of_one() {
+        // A trash bin named sofa (typical length 1.91 m, depth 0.86 m): 0.4 m across whichever
+        // side is its length, far shallower than a sofa.
+        let bin = OrientedBox {
+            centre: DVec3::new(1.0, 1.0, 0.3),
+            size: DVec3::new(0.4, 0.4, 0.6),
+            yaw: 0.3,
+        };
+        assert_eq!(grown_to_length(bin, &[], 1.91, Some(0.86)), bin);
+        // A monitor's screen seen from the front (0.29 wide, 0.09 thick; length 0.55 m, depth
+        // 0.16 m): its width is no depth, and its thickness is too thin to be one.
+        let screen = OrientedBox {
+            centre: DVec3::new(1.0, 1.0, 1.0),
+            size: DVec3::new(0.29, 0.09, 0.3),
+            yaw: 0.0,
+        };
+        assert_eq!(grown_to_length(screen, &[], 0.55, Some(0.16)), screen);
+        // Without a depth prior nothing says so: the longer side grows.
+        let grown = grown_to_length(bin, &[], 1.91, None);
+        assert!((grown.size.x - 1.91).abs() < 1e-9, "{grown:?}");
     }
 }

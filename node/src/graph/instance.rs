@@ -30,7 +30,14 @@ pub struct Instance {
     /// unknown camera). Its box is fitted to its points thinned by it ([`crate::recon::surface`]).
     pub range_noise_m: f32,
     pub range_noise_weight: f32,
+    /// Points just beyond its ends where a view saw free space (the newest
+    /// [`super::fusion::MAX_SEEN_FREE`]): the object ends before them, so a box of an object
+    /// seen in part grows only where no camera saw past it ([`super::amodal::grown_to_length`]).
+    pub seen_free: Vec<Vec3>,
 }
+
+/// Points of [`Instance::seen_free`] in the cell (this size, m) of one already kept add nothing.
+const SEEN_FREE_SPACING_M: f32 = 0.02;
 
 /// Range noise below this (metres) is not thinned: a fifth of the map's 5 cm voxels.
 pub const MIN_THINNED_NOISE_M: f32 = 0.01;
@@ -115,6 +122,25 @@ impl Instance {
         self.range_noise_weight = total;
     }
 
+    /// Keep `points` where a view saw free space beyond it ([`Instance::seen_free`]): those not
+    /// already kept, the oldest dropped beyond the cap.
+    pub(super) fn remember_free(&mut self, points: impl IntoIterator<Item = Vec3>) {
+        // By cell of the spacing: a point in a kept point's cell adds nothing.
+        let cell = |p: Vec3| (p / SEEN_FREE_SPACING_M).floor().as_ivec3();
+        let mut known: rustc_hash::FxHashSet<glam::IVec3> =
+            self.seen_free.iter().map(|p| cell(*p)).collect();
+        for p in points.into_iter().filter(|p| p.is_finite()) {
+            if known.insert(cell(p)) {
+                self.seen_free.push(p);
+            }
+        }
+        let excess = self
+            .seen_free
+            .len()
+            .saturating_sub(super::fusion::MAX_SEEN_FREE);
+        self.seen_free.drain(..excess);
+    }
+
     /// Add `weight` of observations made from `viewpoint` to the weighted mean viewpoint.
     pub(super) fn observe_from(&mut self, viewpoint: Option<Vec3>, weight: f32) {
         let Some(v) = viewpoint.filter(|v| v.is_finite() && weight > 0.0) else {
@@ -167,10 +193,39 @@ impl Instance {
         self.observe_from(other.viewpoint, other.viewpoint_weight);
         let measured = (other.range_noise_weight > 0.0).then_some(other.range_noise_m);
         self.observe_noise(measured, other.range_noise_weight);
+        self.remember_free(other.seen_free.iter().copied());
         self.confidence = self.confidence.max(other.confidence);
         self.observations += other.observations;
         self.first_seen_nanos = self.first_seen_nanos.min(other.first_seen_nanos);
         self.last_seen_nanos = self.last_seen_nanos.max(other.last_seen_nanos);
+    }
+}
+
+#[cfg(test)]
+impl Instance {
+    /// A test instance of small opaque Gaussians at `points`, named by `prototype`, seen by
+    /// three windows through a clean camera from nowhere in particular.
+    pub(crate) fn of_points(id: &str, points: &[Vec3], prototype: &[f32]) -> Self {
+        let mut gaussians = Gaussians::with_dims(0, 0);
+        for p in points {
+            let (scale, rotation) = (Vec3::splat(0.01), glam::Quat::IDENTITY);
+            gaussians.push(*p, 1.0, scale, rotation, Vec3::ONE, &[], &[]);
+        }
+        Self {
+            id: id.into(),
+            gaussians,
+            prototype: prototype.to_vec(),
+            prototype_weight: 1.0,
+            confidence: 1.0,
+            observations: 3,
+            first_seen_nanos: 0,
+            last_seen_nanos: 0,
+            viewpoint: None,
+            viewpoint_weight: 0.0,
+            range_noise_m: 0.0,
+            range_noise_weight: 0.0,
+            seen_free: Vec::new(),
+        }
     }
 }
 

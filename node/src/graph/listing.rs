@@ -5,6 +5,8 @@
 //! wall behind it ([`Walls::place`]) or to its name's typical depth ([`amodal`]), and furniture
 //! that stands on the floor reaching down to it.
 
+use glam::Vec3;
+
 use super::instance::Fitted;
 use super::walls::{is_low, is_thin, Walls};
 use super::{amodal, Instance, SceneMap};
@@ -127,6 +129,7 @@ fn list<'a>(
                 publish(surface).filter(|completed| deepened_face(&surface, completed))
             });
             completed_face.or_else(|| publish(fitted.points)).map(|b| {
+                let b = seen_in_part(b, i, name.map(|n| (n, priors)), map);
                 let stands = name.is_some_and(|n| priors.stands_on_floor(n));
                 Listed {
                     instance: i,
@@ -199,6 +202,78 @@ pub(super) fn seen_from_one_side<'w>(
     }
 }
 
+/// `placed` grown along its length to its name's typical length where it is an object seen in
+/// part, as far as no view saw past the end it grows from and no other instance of `map` stands
+/// there ([`amodal::grown_to_length`]); as it is without a name or a typical length.
+fn seen_in_part(
+    placed: OrientedBox,
+    instance: &Instance,
+    named: Option<(&str, &ClassPriors)>,
+    map: &SceneMap,
+) -> OrientedBox {
+    let Some((name, priors)) = named else {
+        return placed;
+    };
+    let Some(length) = priors.typical_length(name) else {
+        return placed;
+    };
+    if placed.size.x.max(placed.size.y) >= amodal::SEEN_IN_PART_SHARE * length {
+        return placed;
+    }
+    let mut blocked = instance.seen_free.clone();
+    blocked.extend(others_within(&placed, instance, map, length));
+    amodal::grown_to_length(placed, &blocked, length, priors.typical_depth(name))
+}
+
+/// Points of `map`'s other instances (objects and structure, a sample of each) in the space
+/// `placed` could grow into along either horizontal axis to `length`: from a hand above the floor
+/// (the floor under it blocks nothing) to its top.
+fn others_within<'m>(
+    placed: &OrientedBox,
+    instance: &Instance,
+    map: &'m SceneMap,
+    length: f64,
+) -> impl Iterator<Item = Vec3> + 'm {
+    let reach = (length + placed.size.x.max(placed.size.y)) as f32;
+    let centre = placed.centre.as_vec3();
+    let (bottom, top) = (
+        (placed.centre.z - placed.size.z / 2.0) as f32 + ABOVE_FLOOR_M,
+        (placed.centre.z + placed.size.z / 2.0) as f32,
+    );
+    let near = move |p: &Vec3| {
+        (p.x - centre.x).abs() <= reach
+            && (p.y - centre.y).abs() <= reach
+            && p.z > bottom
+            && p.z < top
+    };
+    let id = instance.id.clone();
+    map.instances
+        .iter()
+        .filter(move |other| other.id != id)
+        .filter(move |other| {
+            let (lo, hi) = other.bounds();
+            (lo.x - centre.x <= reach && centre.x - hi.x <= reach)
+                && (lo.y - centre.y <= reach && centre.y - hi.y <= reach)
+                && (lo.z < top && hi.z > bottom)
+        })
+        .flat_map(move |other| {
+            let step = other.gaussians.len().div_ceil(OTHER_SAMPLES).max(1);
+            other
+                .gaussians
+                .means
+                .iter()
+                .step_by(step)
+                .copied()
+                .filter(near)
+        })
+}
+
+/// Points of another instance above this (m) over the grown box's bottom block it: the floor it
+/// stands on does not.
+const ABOVE_FLOOR_M: f32 = 0.1;
+/// Points sampled from each other instance: enough to find a neighbour or a wall.
+const OTHER_SAMPLES: usize = 1024;
+
 /// `placed` extended down to the map's floor when the instance's best name `stands` there (its
 /// class prior) and the box floats ([`amodal::down_to_floor`]); as it is otherwise.
 fn standing_on_floor(
@@ -214,5 +289,125 @@ fn standing_on_floor(
     match map_walls(walls, map, vocabulary).floor() {
         Some(floor) => amodal::down_to_floor(placed, f64::from(floor)),
         None => placed,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// An instance named by `prototype` over the points of an axis-aligned cuboid's surface.
+    fn cuboid(id: &str, lo: Vec3, hi: Vec3, prototype: [f32; 2]) -> Instance {
+        let steps = |a: f32, b: f32| ((b - a) / 0.04).ceil().max(1.0) as usize;
+        let n = [steps(lo.x, hi.x), steps(lo.y, hi.y), steps(lo.z, hi.z)];
+        let mut points = Vec::new();
+        for i in 0..=n[0] {
+            for j in 0..=n[1] {
+                for k in 0..=n[2] {
+                    if [
+                        i == 0 || i == n[0],
+                        j == 0 || j == n[1],
+                        k == 0 || k == n[2],
+                    ]
+                    .contains(&true)
+                    {
+                        let t = Vec3::new(i as f32, j as f32, k as f32)
+                            / Vec3::new(n[0] as f32, n[1] as f32, n[2] as f32);
+                        points.push(lo + (hi - lo) * t);
+                    }
+                }
+            }
+        }
+        Instance::of_points(id, &points, &prototype)
+    }
+
+    const DESK: [f32; 2] = [1.0, 0.0];
+
+    /// The default vocabulary's desk (typical length 1.38 m, depth 0.69 m), and `other`.
+    fn desks() -> Vocabulary {
+        Vocabulary {
+            phrases: vec!["desk".into(), "other".into()],
+            embeddings: vec![vec![1.0, 0.0], vec![0.0, 1.0]],
+            temperature: 0.05,
+            priors: ClassPriors::builtin(),
+        }
+    }
+
+    /// The published box of instance `id` in `map`'s object list.
+    fn listed_box(map: &SceneMap, id: &str) -> OrientedBox {
+        let vocabulary = desks();
+        let list = object_list(map, Some(&vocabulary), |i, _| i.oriented_box().into());
+        list.iter()
+            .find(|l| l.instance.id == id)
+            .expect("listed")
+            .bbox
+    }
+
+    /// The x extent of `b`, whatever its yaw's quarter turn.
+    fn x_extent(b: &OrientedBox) -> (f64, f64) {
+        let half = if b.yaw.cos().abs() > 0.5 {
+            b.size.x
+        } else {
+            b.size.y
+        } / 2.0;
+        (b.centre.x - half, b.centre.x + half)
+    }
+
+    #[test]
+    fn a_desk_seen_in_part_grows_to_its_length_but_not_into_the_desk_beside_it_nor_past_free_space()
+    {
+        // Half a metre of a desk (x 0 to 0.5, its whole 0.69 m depth), seen in part.
+        let piece = || {
+            cuboid(
+                "piece",
+                Vec3::new(0.0, 0.0, 0.0),
+                Vec3::new(0.5, 0.69, 0.75),
+                DESK,
+            )
+        };
+        let floor = cuboid(
+            "floor",
+            Vec3::new(-3.0, -3.0, -0.02),
+            Vec3::new(4.0, 4.0, 0.0),
+            [0.0, 1.0],
+        );
+        let alone = SceneMap {
+            instances: vec![piece(), floor.clone()],
+            ..SceneMap::default()
+        };
+        let (lo, hi) = x_extent(&listed_box(&alone, "piece"));
+        assert!(
+            (hi - lo - 1.38).abs() < 0.02 && (lo + hi - 0.5).abs() < 0.02,
+            "{lo} {hi}"
+        );
+        // Another desk touching its +x end (a row): it grows only the other way.
+        let neighbour = cuboid(
+            "next",
+            Vec3::new(0.52, 0.0, 0.0),
+            Vec3::new(1.9, 0.69, 0.75),
+            DESK,
+        );
+        let row = SceneMap {
+            instances: vec![piece(), neighbour, floor.clone()],
+            ..SceneMap::default()
+        };
+        let (lo, hi) = x_extent(&listed_box(&row, "piece"));
+        assert!(hi < 0.53 && (hi - lo - 1.38).abs() < 0.02, "{lo} {hi}");
+        // And views saw the floor 0.4 m past its -x end and in front of it (a wall behind it):
+        // it grows only to there.
+        let mut seen = piece();
+        seen.seen_free = vec![Vec3::new(-0.4, 0.35, 0.7), Vec3::new(0.25, -0.2, 0.7)];
+        let wall = cuboid(
+            "wall",
+            Vec3::new(-3.0, 0.72, 0.0),
+            Vec3::new(4.0, 0.74, 2.5),
+            [0.0, 1.0],
+        );
+        let hemmed = SceneMap {
+            instances: vec![seen, row.instances[1].clone(), floor, wall],
+            ..SceneMap::default()
+        };
+        let (lo, hi) = x_extent(&listed_box(&hemmed, "piece"));
+        assert!(hi < 0.53 && lo > -0.41 && lo < -0.2, "{lo} {hi}");
     }
 }

@@ -122,6 +122,9 @@ struct InstanceHeader {
     range_noise_m: f32,
     #[serde(default)]
     range_noise_weight: f32,
+    /// Absent from maps saved before it was kept (and from instances without any).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    seen_free: Vec<[f32; 3]>,
     gaussians: usize,
     embedding_dim: usize,
     extra_dim: usize,
@@ -165,6 +168,7 @@ pub fn to_bytes(map: &SceneMap) -> Vec<u8> {
                 viewpoint_weight: i.viewpoint_weight,
                 range_noise_m: i.range_noise_m,
                 range_noise_weight: i.range_noise_weight,
+                seen_free: i.seen_free.iter().map(|p| p.to_array()).collect(),
                 gaussians: i.gaussians.len(),
                 embedding_dim: i.gaussians.embedding_dim,
                 extra_dim: i.gaussians.extra_dim,
@@ -320,6 +324,12 @@ pub fn from_bytes(bytes: &[u8], params: FusionParams) -> Result<SceneMap, Persis
             viewpoint_weight: h.viewpoint_weight,
             range_noise_m: finite_or_zero(h.range_noise_m),
             range_noise_weight: finite_or_zero(h.range_noise_weight),
+            seen_free: h
+                .seen_free
+                .into_iter()
+                .map(Vec3::from_array)
+                .filter(|p| p.is_finite())
+                .collect(),
         });
     }
     let keyframes = header

@@ -408,31 +408,12 @@ mod tests {
     /// An instance of `points` named by `prototype`, seen from `viewpoint` through range noise
     /// `sigma` (0: a clean camera).
     fn instance_of(id: &str, points: &[Vec3], prototype: [f32; 3], sigma: f32) -> Instance {
-        let mut gaussians = crate::recon::gaussians::Gaussians::with_dims(0, 0);
-        for p in points {
-            gaussians.push(
-                *p,
-                1.0,
-                Vec3::splat(0.01),
-                glam::Quat::IDENTITY,
-                Vec3::ONE,
-                &[],
-                &[],
-            );
-        }
         Instance {
-            id: id.into(),
-            gaussians,
-            prototype: prototype.to_vec(),
-            prototype_weight: 1.0,
-            confidence: 1.0,
-            observations: 3,
-            first_seen_nanos: 0,
-            last_seen_nanos: 0,
             viewpoint: Some(Vec3::new(2.4, 3.5, 1.2)),
             viewpoint_weight: 1.0,
             range_noise_m: sigma,
             range_noise_weight: f32::from(sigma > 0.0),
+            ..Instance::of_points(id, points, &prototype)
         }
     }
 

@@ -55,6 +55,11 @@ pub struct VocabularyClass {
     /// back, and the object stands in front of it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub smallest_depth_m: Option<f64>,
+    /// The length (longer horizontal side, m) its objects typically have: an object seen in
+    /// part grows to it along its length where no camera saw past its end. Only for objects
+    /// with flat faces, like the depth.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub typical_length_m: Option<f64>,
     /// The longest horizontal side its objects have: touching pieces named alike fold only while
     /// together they are not much longer.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -87,6 +92,7 @@ impl VocabularyFile {
             let lengths = [
                 class.typical_depth_m,
                 class.smallest_depth_m,
+                class.typical_length_m,
                 class.largest_side_m,
             ];
             if lengths
@@ -170,6 +176,11 @@ impl ClassPriors {
         self.class(name)?.smallest_depth_m
     }
 
+    /// The typical length of `name`'s objects, if it has one.
+    pub fn typical_length(&self, name: &str) -> Option<f64> {
+        self.class(name)?.typical_length_m
+    }
+
     /// The longest horizontal side `name`'s objects have, if known.
     pub fn largest_side(&self, name: &str) -> Option<f64> {
         self.class(name)?.largest_side_m
@@ -234,6 +245,7 @@ mod tests {
         for bad in [
             "typical_depth_m: -0.4",
             "largest_side_m: .nan",
+            "typical_length_m: 0",
             "typical_depth_m: 0.3\n    smallest_depth_m: 0.5",
         ] {
             let text = format!("classes:\n  - name: crate\n    {bad}\n");
@@ -256,6 +268,7 @@ mod tests {
         assert!(priors.stands_on_floor("coat rack"));
         assert_eq!(priors.largest_side("coat rack"), Some(0.6));
         assert_eq!(priors.largest_side("fire extinguisher"), None);
+        assert_eq!(priors.typical_length("coat rack"), None);
         assert_eq!(priors.functions("whiteboard"), ["write on"]);
         assert!(priors.functions("coat rack").is_empty());
         assert_eq!(ClassPriors::default().smallest_depth("chair"), None);

@@ -21,7 +21,8 @@ use crate::frame::{Keyframe, WindowInstance, WindowView};
 use crate::recon::depth_noise::median_measured;
 use associate::Association;
 use folds::birth_order;
-use free_space::{mean_camera_centre, seen_through_fraction};
+pub use free_space::MAX_SEEN_FREE;
+use free_space::{in_view, mean_camera_centre, probes_beyond, seen_free, seen_through_fraction};
 
 pub use folds::{is_back_of, is_leg_of};
 
@@ -155,6 +156,7 @@ impl SceneMap {
         report.record_folds(folded);
         self.clear_beyond_radius(views, &mut keep, &mut report);
         self.retain_marked(&keep);
+        self.look_past_ends(views);
         self.keep_keyframes(views);
         Ok(report)
     }
@@ -345,6 +347,27 @@ impl SceneMap {
         }
     }
 
+    /// Where the window's views see free space just beyond an instance's ends, it keeps those
+    /// points ([`Instance::seen_free`]): its object ends before them. Every instance, seen by the
+    /// window or not: a view past the end of a table it does not group is evidence all the same.
+    fn look_past_ends(&mut self, views: &[WindowView]) {
+        let tolerance = self.params.depth_tolerance;
+        for instance in &mut self.instances {
+            if !views.iter().any(|view| in_view(instance.center(), view)) {
+                continue;
+            }
+            let probes = probes_beyond(&instance.gaussians.means);
+            if probes.is_empty() {
+                continue;
+            }
+            let free: Vec<Vec3> = views
+                .iter()
+                .flat_map(|view| seen_free(&probes, view, tolerance))
+                .collect();
+            instance.remember_free(free);
+        }
+    }
+
     /// The window's keyframes join the map's, the oldest beyond the limit dropped.
     fn keep_keyframes(&mut self, views: &[WindowView]) {
         for view in views {
@@ -481,6 +504,7 @@ fn born(
         viewpoint_weight: 0.0,
         range_noise_m: 0.0,
         range_noise_weight: 0.0,
+        seen_free: Vec::new(),
     };
     born.observe_from(sighting.viewpoint, seen_by);
     born.observe_noise(range_noise, seen_by);

@@ -76,6 +76,7 @@ fn fragments_born_in_one_window_fold_into_the_lower_id_however_often_the_other_w
         viewpoint_weight: 0.0,
         range_noise_m: 0.0,
         range_noise_weight: 0.0,
+        seen_free: Vec::new(),
     };
     // Two pieces of one chair born in one window; the younger was seen again by the next
     // window, the older is the one the map listed. Ids compare in birth order (010 > 009).
