@@ -1,7 +1,8 @@
 //! `groupforward eval map`: sim scenes no training saw, replayed through the node's stages with
 //! the shipped (or given) models, the final map scored against ground truth. Writes
 //! `DIR/objects.csv` (one row per object), `DIR/instances.csv` (one row per listed instance:
-//! where the false positives are), `DIR/summary.json` and `DIR/summary.md`, and prints
+//! where the false positives are), `DIR/identity.csv` (where map ids changed or stood for two
+//! objects), `DIR/summary.json` and `DIR/summary.md`, and prints
 //! the table with each headline figure's 95% interval over scenes; `--against` an earlier run's
 //! directory also gives the paired difference, so a change is judged against the spread.
 
@@ -111,6 +112,8 @@ pub struct Scored {
     pub per_scene: Vec<(String, Counts, usize)>,
     /// Per scene: its name and its map from above (SVG).
     pub pictures: Vec<(String, String)>,
+    /// Rows of `identity.csv`, every scene's ([`crate::eval_identity`]).
+    pub identity: Vec<String>,
     pub window_times: Vec<StageTimes>,
     pub depth: DepthValidity,
     pub model_pixels_without_depth: u64,
@@ -169,6 +172,12 @@ impl Scored {
                 &run.instances,
                 &instance_rows,
             ),
+        ));
+        self.identity.extend(crate::eval_identity::identity_rows(
+            &run.scene,
+            &run.objects,
+            &run.windows,
+            MIN_WINDOW_PIXELS,
         ));
         self.rows.extend(scene_rows);
         self.instance_rows.extend(instance_rows);
@@ -235,8 +244,10 @@ pub fn eval_map(
         lifted_at_neighbour_depth,
         depth_noise_at_1m,
         pictures,
+        identity,
     } = score_scenes(files, &config, &mut window_models, "eval map")?;
     write_pictures(&pictures, &out.join("maps"))?;
+    crate::eval_identity::write_identity_csv(&out.join("identity.csv"), &identity)?;
     let noise_at_1m = depth_noise::median_measured(depth_noise_at_1m.iter().copied());
     let noise_windows = depth_noise_at_1m.iter().flatten().count();
     let summary = total.summary();

@@ -12,6 +12,7 @@ mod eval;
 mod eval_all;
 mod eval_baseline;
 mod eval_command;
+mod eval_identity;
 mod eval_refer;
 mod eval_window;
 mod model_check;

@@ -299,6 +299,7 @@ pub fn replay_scene_with(
                 objects: seen.into_iter().collect(),
                 instances: boxes.into_iter().zip(report.assigned).collect(),
                 map: listed_instances(&map, models),
+                folds: report.absorbed,
             });
         }
     }

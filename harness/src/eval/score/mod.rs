@@ -15,8 +15,8 @@ use groupforward::recon::metrics::ObjectCoverage;
 mod traces;
 
 pub use traces::{
-    attach_traces, score_windows, trace_objects, LostAt, ObjectTrace, PIXEL_FOUND_IOU,
-    UNASSIGNED_REASONS,
+    attach_traces, identity_events, score_windows, trace_objects, IdChange, LostAt, ObjectTrace,
+    PIXEL_FOUND_IOU, UNASSIGNED_REASONS,
 };
 
 /// IoU thresholds of the recall figures (ScanRefer's Acc@0.25 / Acc@0.5).
@@ -96,6 +96,8 @@ pub struct WindowRecord {
     pub unassigned: Vec<(u16, [u64; UNASSIGNED_REASONS])>,
     pub instances: Vec<(OrientedBox, String)>,
     pub map: Vec<ListedInstance>,
+    /// The instances the window's fusion folded into others: (absorbed, survivor) ids.
+    pub folds: Vec<(String, String)>,
 }
 
 /// What became of one object.

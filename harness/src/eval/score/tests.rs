@@ -247,6 +247,24 @@ fn map_identity_counts_an_id_that_moves_to_another_object_and_an_object_that_cha
     let s = counts.summary();
     assert_eq!(s.map_id_changes_per_100_sightings, 25.0);
     assert_eq!(s.map_ids_shared, 1);
+    // The events behind the counts: the change a rematch, until the window says it folded "a"
+    // into "b".
+    let change = |folded| IdChange {
+        window: 1,
+        object: 1,
+        previous_id: "a".into(),
+        id: "b".into(),
+        folded,
+    };
+    let (sightings, changes, ids) = identity_events(&objects, &windows, 500);
+    assert_eq!((sightings, changes), (4, vec![change(false)]));
+    assert_eq!(ids["b"], [1, 2].into_iter().collect());
+    let mut folded = windows.clone();
+    folded[1].folds = vec![("a".into(), "b".into())];
+    assert_eq!(
+        identity_events(&objects, &folded, 500).1,
+        vec![change(true)]
+    );
 }
 
 #[test]
@@ -317,6 +335,7 @@ fn each_lost_object_is_traced_to_the_stage_that_lost_it() {
             unassigned: vec![(2, [0, 60, 40, 0, 0, 0])],
             instances: vec![at(0.0, 0.5, "a"), at(4.0, 0.15, "c"), at(6.0, 0.5, "d")],
             map: vec![listed("a", 0.0, 0.5), listed("d", 6.0, 0.5)],
+            folds: vec![],
         },
         WindowRecord {
             objects: vec![(1, 500), (4, 50)],
@@ -325,6 +344,7 @@ fn each_lost_object_is_traced_to_the_stage_that_lost_it() {
             instances: vec![at(0.0, 0.5, "a")],
             // The map's box for 4 grew to three times its size (IoU 1/27).
             map: vec![listed("a", 0.0, 0.5), listed("d", 6.0, 1.5)],
+            folds: vec![],
         },
     ];
     let map = windows[1].map.clone();

@@ -1,7 +1,7 @@
 //! Following objects through a scene's windows: identity switches across sightings, and per
 //! object where it was lost (no window grouped it, fusion never held it, or the map lost it).
 
-use std::collections::HashMap;
+use std::collections::{BTreeMap, BTreeSet, HashMap};
 
 use serde::Serialize;
 
@@ -62,18 +62,32 @@ impl ObjectTrace {
     }
 }
 
-/// Score the windows of one scene: each window's instances against the objects it saw (at least
-/// `min_pixels` in the window's views), and the persistent id every sighting got. An identity
-/// switch is an object sighted under another id than at its previous sighting. Then the map
-/// after each window against the objects seen so far (at least `min_pixels` in all windows up
-/// to it): which id each object is found under, and which ids stood for two objects.
-pub fn score_windows(objects: &[TruthObject], windows: &[WindowRecord], min_pixels: u64) -> Counts {
-    let mut counts = Counts::default();
-    let mut last_id: HashMap<u16, String> = HashMap::new();
+/// One change of the map id an object is found under ([`identity_events`]): at window `window`
+/// (its index in the scene), `object` was found under `id` after `previous_id`; `folded` when that
+/// window folded `previous_id` into `id` (the fold rules joined two instances), not a rematch.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+pub struct IdChange {
+    pub window: usize,
+    pub object: u16,
+    pub previous_id: String,
+    pub id: String,
+    pub folded: bool,
+}
+
+/// The map ids of one scene's run: per window, the map after it against the objects seen so far
+/// (at least `min_pixels` in all windows up to it), matched one to one at IoU ≥ 0.25. Returns the
+/// sightings (object found in the map after a window), every id change, and per map id the
+/// objects it was found as (an id found as two objects stood for both).
+pub fn identity_events(
+    objects: &[TruthObject],
+    windows: &[WindowRecord],
+    min_pixels: u64,
+) -> (u64, Vec<IdChange>, BTreeMap<String, BTreeSet<u16>>) {
     let mut seen_so_far: HashMap<u16, u64> = HashMap::new();
     let mut last_map_id: HashMap<u16, String> = HashMap::new();
-    let mut id_objects: HashMap<String, std::collections::BTreeSet<u16>> = HashMap::new();
-    for window in windows {
+    let mut id_objects: BTreeMap<String, BTreeSet<u16>> = BTreeMap::new();
+    let (mut sightings, mut changes) = (0u64, Vec::new());
+    for (k, window) in windows.iter().enumerate() {
         for (id, pixels) in &window.objects {
             *seen_so_far.entry(*id).or_default() += pixels;
         }
@@ -89,13 +103,34 @@ pub fn score_windows(objects: &[TruthObject], windows: &[WindowRecord], min_pixe
                 continue;
             }
             let id = &window.map[i].id;
-            counts.map_sightings += 1;
+            sightings += 1;
             id_objects.entry(id.clone()).or_default().insert(object.id);
-            if let Some(previous) = last_map_id.insert(object.id, id.clone()) {
-                counts.map_id_changes += u64::from(&previous != id);
+            match last_map_id.insert(object.id, id.clone()) {
+                Some(previous) if &previous != id => changes.push(IdChange {
+                    window: k,
+                    object: object.id,
+                    folded: window.folds.contains(&(previous.clone(), id.clone())),
+                    previous_id: previous,
+                    id: id.clone(),
+                }),
+                _ => {}
             }
         }
     }
+    (sightings, changes, id_objects)
+}
+
+/// Score the windows of one scene: each window's instances against the objects it saw (at least
+/// `min_pixels` in the window's views), and the persistent id every sighting got. An identity
+/// switch is an object sighted under another id than at its previous sighting. Then the map
+/// after each window against the objects seen so far ([`identity_events`]): which id each object
+/// is found under, and which ids stood for two objects.
+pub fn score_windows(objects: &[TruthObject], windows: &[WindowRecord], min_pixels: u64) -> Counts {
+    let mut counts = Counts::default();
+    let mut last_id: HashMap<u16, String> = HashMap::new();
+    let (sightings, changes, id_objects) = identity_events(objects, windows, min_pixels);
+    counts.map_sightings = sightings;
+    counts.map_id_changes = changes.len() as u64;
     counts.map_ids_shared = id_objects.values().filter(|o| o.len() > 1).count() as u64;
     for window in windows {
         let seen: Vec<&TruthObject> = window
