@@ -37,12 +37,12 @@ pub fn identity_rows(
         )
     });
     let shared = ids.into_iter().filter(|(_, o)| o.len() > 1).map(|(id, o)| {
-        let join =
-            |f: &dyn Fn(u16) -> String| o.iter().map(|&k| f(k)).collect::<Vec<_>>().join(" ");
+        let objects: Vec<String> = o.iter().map(u16::to_string).collect();
+        let classes: Vec<String> = o.iter().map(|&k| class(k)).collect();
         format!(
             "{scene},,{},{},shared,,{id}",
-            join(&|k| k.to_string()),
-            join(&|k| class(k))
+            objects.join(" "),
+            classes.join(" ")
         )
     });
     changed.chain(shared).collect()

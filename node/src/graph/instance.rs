@@ -31,11 +31,14 @@ pub struct Instance {
     pub range_noise_m: f32,
     pub range_noise_weight: f32,
     /// Points just beyond its ends where a view saw free space (the newest
-    /// [`super::fusion::MAX_SEEN_FREE`]): the object ends before them, so a box of an object
+    /// [`MAX_SEEN_FREE`]): the object ends before them, so a box of an object
     /// seen in part grows only where no camera saw past it ([`super::amodal::grown_to_length`]).
     pub seen_free: Vec<Vec3>,
 }
 
+/// Points an instance keeps where views saw free space beyond it ([`Instance::seen_free`]); the
+/// newest are kept. A bound on memory (3 KB an instance), not read off any scene.
+pub const MAX_SEEN_FREE: usize = 256;
 /// Points of [`Instance::seen_free`] in the cell (this size, m) of one already kept add nothing.
 const SEEN_FREE_SPACING_M: f32 = 0.02;
 
@@ -134,10 +137,7 @@ impl Instance {
                 self.seen_free.push(p);
             }
         }
-        let excess = self
-            .seen_free
-            .len()
-            .saturating_sub(super::fusion::MAX_SEEN_FREE);
+        let excess = self.seen_free.len().saturating_sub(MAX_SEEN_FREE);
         self.seen_free.drain(..excess);
     }
 

@@ -73,6 +73,8 @@ fn list<'a>(
     with_tentative: bool,
 ) -> Vec<Listed<'a>> {
     let walls = std::cell::OnceCell::new();
+    // Every instance's bounds, once per list and only if a box may grow ([`seen_in_part`]).
+    let bounds = std::cell::OnceCell::new();
     // Without a vocabulary nothing is named, so no prior applies.
     let no_priors = ClassPriors::default();
     let priors = vocabulary.map_or(&no_priors, |v| &v.priors);
@@ -129,7 +131,7 @@ fn list<'a>(
                 publish(surface).filter(|completed| deepened_face(&surface, completed))
             });
             completed_face.or_else(|| publish(fitted.points)).map(|b| {
-                let b = seen_in_part(b, i, name.map(|n| (n, priors)), map);
+                let b = seen_in_part(b, i, name.map(|n| (n, priors)), map, &bounds);
                 let stands = name.is_some_and(|n| priors.stands_on_floor(n));
                 Listed {
                     instance: i,
@@ -210,6 +212,7 @@ fn seen_in_part(
     instance: &Instance,
     named: Option<(&str, &ClassPriors)>,
     map: &SceneMap,
+    bounds: &std::cell::OnceCell<Vec<(Vec3, Vec3)>>,
 ) -> OrientedBox {
     let Some((name, priors)) = named else {
         return placed;
@@ -217,21 +220,24 @@ fn seen_in_part(
     let Some(length) = priors.typical_length(name) else {
         return placed;
     };
-    if placed.size.x.max(placed.size.y) >= amodal::SEEN_IN_PART_SHARE * length {
+    // Blockers are gathered only for a box that may grow.
+    if !amodal::is_seen_in_part(&placed, length) {
         return placed;
     }
     let mut blocked = instance.seen_free.clone();
-    blocked.extend(others_within(&placed, instance, map, length));
+    let bounds = bounds.get_or_init(|| map.instances.iter().map(Instance::bounds).collect());
+    blocked.extend(others_within(&placed, instance, map, bounds, length));
     amodal::grown_to_length(placed, &blocked, length, priors.typical_depth(name))
 }
 
-/// Points of `map`'s other instances (objects and structure, a sample of each) in the space
-/// `placed` could grow into along either horizontal axis to `length`: from a hand above the floor
-/// (the floor under it blocks nothing) to its top.
+/// Points of `map`'s other instances (objects and structure, a sample of each; `bounds` in the
+/// map's order) in the space `placed` could grow into along either horizontal axis to `length`:
+/// from a hand above the floor (the floor under it blocks nothing) to its top.
 fn others_within<'m>(
     placed: &OrientedBox,
     instance: &Instance,
     map: &'m SceneMap,
+    bounds: &'m [(Vec3, Vec3)],
     length: f64,
 ) -> impl Iterator<Item = Vec3> + 'm {
     let reach = (length + placed.size.x.max(placed.size.y)) as f32;
@@ -249,14 +255,14 @@ fn others_within<'m>(
     let id = instance.id.clone();
     map.instances
         .iter()
-        .filter(move |other| other.id != id)
-        .filter(move |other| {
-            let (lo, hi) = other.bounds();
+        .zip(bounds)
+        .filter(move |(other, _)| other.id != id)
+        .filter(move |(_, (lo, hi))| {
             (lo.x - centre.x <= reach && centre.x - hi.x <= reach)
                 && (lo.y - centre.y <= reach && centre.y - hi.y <= reach)
                 && (lo.z < top && hi.z > bottom)
         })
-        .flat_map(move |other| {
+        .flat_map(move |(other, _)| {
             let step = other.gaussians.len().div_ceil(OTHER_SAMPLES).max(1);
             other
                 .gaussians

@@ -67,8 +67,6 @@ pub(super) fn seen_through_fraction(
 /// Distances (m) beyond an instance's ends at which a view may see free space: where it does,
 /// the object ends before that point ([`super::super::amodal::grown_to_length`] reads them).
 const PROBE_DISTANCES_M: [f32; 6] = [0.1, 0.2, 0.35, 0.5, 0.7, 1.0];
-/// Points an instance keeps where views saw free space beyond it; the newest are kept.
-pub const MAX_SEEN_FREE: usize = 256;
 /// Points sampled from an instance to find its axes and ends: plenty for a box, and bounded
 /// whatever the instance holds.
 const FRAME_SAMPLES: usize = 512;
@@ -135,7 +133,9 @@ fn extent_of(points: &[Vec3]) -> Option<Extent> {
 }
 
 /// Instances farther than this (m, along the view) are not looked past: across a room, not
-/// across a hall, where the depth's noise grows with the square of the range.
+/// across a hall, where the depth's noise grows with the square of the range. A choice for speed
+/// (`bench graph`, 500 instances: fusion 45.9 -> 29.6 ms with it); the eval ranges of the seen-in-part
+/// rule gave the same figures with and without it (benchmark 7000, 8000, layouts 0, 40).
 const MAX_PROBE_RANGE_M: f64 = 6.0;
 
 /// Whether `point` lies in front of `view`'s camera within [`MAX_PROBE_RANGE_M`] and projects

@@ -21,7 +21,6 @@ use crate::frame::{Keyframe, WindowInstance, WindowView};
 use crate::recon::depth_noise::median_measured;
 use associate::Association;
 use folds::birth_order;
-pub use free_space::MAX_SEEN_FREE;
 use free_space::{in_view, mean_camera_centre, probes_beyond, seen_free, seen_through_fraction};
 
 pub use folds::{is_back_of, is_leg_of};
