@@ -139,7 +139,8 @@ impl WindowModels {
     }
 }
 
-/// The vocabulary as fusion asks it: kinds by best name, sizes by the name's largest side.
+/// The vocabulary as fusion asks it: kinds by best name, sizes by the name's largest side and
+/// typical length.
 impl Kinds for KindMemo<'_> {
     fn same_kind(&self, a: &[f32], b: &[f32]) -> bool {
         KindMemo::same_kind(self, a, b)
@@ -148,5 +149,10 @@ impl Kinds for KindMemo<'_> {
     fn largest_side(&self, prototype: &[f32]) -> Option<f64> {
         self.best_phrase(prototype)
             .and_then(|name| self.priors().largest_side(&name))
+    }
+
+    fn typical_length(&self, prototype: &[f32]) -> Option<f64> {
+        self.best_phrase(prototype)
+            .and_then(|name| self.priors().typical_length(&name))
     }
 }

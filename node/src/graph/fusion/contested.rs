@@ -1,8 +1,10 @@
-//! Contested points: a persistent instance that one window sees as two alike objects (one sighting
-//! matched it, another lies on it as a part, both named alike and of about one size, together
-//! longer than the fragment rule would join: three cabinets of a row the map had grown over) is
-//! split. Its points go to the nearer of the two sightings' points, the part is born with its
-//! share, and the two are kept as seen apart ([`SceneMap::seen_apart`]).
+//! Contested points: a persistent instance that one window sees as two alike objects (two
+//! sightings on it, one that matched it or another part, the other lying on it as a part, both
+//! named alike and of about one size, together longer than the fragment rule would join: three
+//! cabinets of a row the map had grown over; or, each as long as one object of the name and side
+//! by side, together longer than any one: two bookshelves of a row) is split. Its points go to the
+//! nearer of the two sightings' points, the id stays with the sighting nearer most of them, the
+//! other is born with its share, and the two are kept as seen apart ([`SceneMap::seen_apart`]).
 //!
 //! Without it the map's instances only ever grew: points went to whichever instance claimed the
 //! region first, and a row of identical objects that one window grouped as one stayed one
@@ -21,19 +23,12 @@ use rustc_hash::FxHashMap;
 
 use super::associate::Association;
 use super::folds::{names_an_object, FRAGMENT_SIDE_MARGIN};
-use super::SceneMap;
+use super::shapes::{alike, two_whole_objects};
+use super::{Kinds, SceneMap};
 use crate::frame::WindowInstance;
 use crate::recon::boxes::{OrientedBox, DEFAULT_TRIM};
 use crate::recon::gaussians::Gaussians;
-use crate::recon::round::fit_object_box;
 
-/// Two sightings are of about one size when each side of their boxes (longer and shorter
-/// horizontal, height) is within this factor of the other's: a row's cabinets or chairs are, a
-/// bed's headboard and mattress or a table's top and leg are not.
-const ALIKE_SIDE_RATIO: f64 = 2.0;
-/// Sides are compared at least this long (m): a face seen flat has no depth, and its depth is not
-/// what tells two objects apart.
-const ALIKE_MIN_SIDE_M: f64 = 0.15;
 /// An instance is split only where it is longer than this many times the longest object of its
 /// name ([`super::Kinds::largest_side`]): a bed the window cut into halves is not, a row of two
 /// desks or three cabinets is. The fragment rule's own bound: a shorter split would be folded
@@ -48,18 +43,6 @@ const NEAR_CELL_M: f32 = 0.1;
 /// Farther from every owner, a point goes to the nearest of at most this many points of each (an
 /// even stride): far points (a part of the instance this window did not see) need no precision.
 const OWNER_SAMPLE: usize = 256;
-
-/// Whether two point sets are of about one size ([`ALIKE_SIDE_RATIO`]).
-pub(super) fn alike(a: &[Vec3], b: &[Vec3]) -> bool {
-    let sides = |points: &[Vec3]| {
-        let size = fit_object_box(points, DEFAULT_TRIM).size;
-        [size.x.max(size.y), size.x.min(size.y), size.z].map(|s| s.max(ALIKE_MIN_SIDE_M))
-    };
-    let (sa, sb) = (sides(a), sides(b));
-    sa.iter()
-        .zip(&sb)
-        .all(|(x, y)| x.is_finite() && y.is_finite() && x.max(*y) <= ALIKE_SIDE_RATIO * x.min(*y))
-}
 
 /// For each of `points`, the index of the owner holding its nearest point (owners without points
 /// are never nearest; with no owner at all, 0). Exact within [`NEAR_CELL_M`] (a hash grid of every
@@ -126,59 +109,79 @@ fn partition(g: &Gaussians, owner: &[usize], owners: usize) -> Vec<Gaussians> {
 impl SceneMap {
     /// Split each persistent instance one window saw as two alike objects (see the module
     /// notes): a window instance that joined a persistent instance only as a part, while
-    /// another window instance alike it matched that instance, is born instead, with the
-    /// persistent instance's points nearer its own than the matched one's. Returns the (matched,
-    /// split) window-instance pairs, which the window saw apart.
+    /// another window instance alike it joined that instance too (matched, or as a part still
+    /// there), is born instead, with the persistent instance's points nearer its own than the
+    /// other's. Returns the (kept, split) window-instance pairs, which the window saw apart.
     pub(super) fn split_where_seen_as_two(
         &mut self,
         window: &mut [WindowInstance],
         association: &mut Association,
-        same_kind: &dyn Fn(&[f32], &[f32]) -> bool,
-        largest_side: &dyn Fn(&[f32]) -> Option<f64>,
+        kinds: &dyn Kinds,
     ) -> Vec<(usize, usize)> {
         let mut splits = Vec::new();
         for part in 0..window.len() {
             let Some(j) = association.pairs[part].filter(|_| association.from_parts[part]) else {
                 continue;
             };
-            let Some(kept) = (0..window.len())
-                .find(|&k| association.pairs[k] == Some(j) && !association.from_parts[k])
-            else {
+            // The sighting that matched the instance first; else another part on it (the
+            // match may be a shelf board while both bookshelves it spans lie on it as parts),
+            // then only as two whole objects.
+            let on_j = |k: usize| k != part && association.pairs[k] == Some(j);
+            let mut others: Vec<usize> = (0..window.len()).filter(|&k| on_j(k)).collect();
+            others.sort_by_key(|&k| association.from_parts[k]);
+            let Some(kept) = others.into_iter().find(|&k| {
+                let both_parts = association.from_parts[k];
+                self.seen_as_two(j, &window[k], &window[part], both_parts, kinds)
+            }) else {
                 continue;
             };
-            if !self.seen_as_two(j, &window[kept], &window[part], same_kind, largest_side) {
-                continue;
-            }
-            let given = self.give_away(j, &window[kept].gaussians, &window[part].gaussians);
-            let w = &mut window[part].gaussians;
+            // The id stays with the sighting nearer most of the instance's points: the object
+            // the map mostly held under it.
+            let (kept, leaving) =
+                if self.nearer_most(j, &window[part].gaussians, &window[kept].gaussians) {
+                    (part, kept)
+                } else {
+                    (kept, part)
+                };
+            let given = self.give_away(j, &window[kept].gaussians, &window[leaving].gaussians);
+            let w = &mut window[leaving].gaussians;
             if (given.embedding_dim, given.extra_dim) == (w.embedding_dim, w.extra_dim) {
                 w.extend(&given);
             }
-            association.pairs[part] = None;
-            splits.push((kept, part));
+            association.pairs[leaving] = None;
+            tracing::debug!(
+                instance = %self.instances[j].id,
+                kept,
+                born = leaving,
+                "split: one window saw two objects on it"
+            );
+            splits.push((kept, leaving));
         }
         splits
     }
 
-    /// Whether sightings `a` (matched to instance `j`) and `b` (lying on it as a part) are two
-    /// objects: both objects, named alike, of about one size ([`alike`]), and together with `j`
-    /// longer than one object of their name could be ([`SPLIT_SIDE_MARGIN`]; two halves of one bed
-    /// are alike too; a name without that prior is never split).
+    /// Whether sightings `a` and `b` (on instance `j`, `b` as a part, and `a` too where
+    /// `both_parts`) are two objects: both objects, named alike, of about one size ([`alike`]),
+    /// and together with `j` longer than one object of their name could be: [`SPLIT_SIDE_MARGIN`]
+    /// times its largest side (not for two parts: pieces of a sofa or a table's edge, on benchmark
+    /// 11804 and 11811), or once that where each is as long as one ([`two_whole_objects`]; two
+    /// halves of one bed are alike too; a name without that prior is never split).
     fn seen_as_two(
         &self,
         j: usize,
         a: &WindowInstance,
         b: &WindowInstance,
-        same_kind: &dyn Fn(&[f32], &[f32]) -> bool,
-        largest_side: &dyn Fn(&[f32]) -> Option<f64>,
+        both_parts: bool,
+        kinds: &dyn Kinds,
     ) -> bool {
-        let named_alike = names_an_object(same_kind, &a.prototype)
-            && names_an_object(same_kind, &b.prototype)
+        let same_kind = |x: &[f32], y: &[f32]| kinds.same_kind(x, y);
+        let named_alike = names_an_object(&same_kind, &a.prototype)
+            && names_an_object(&same_kind, &b.prototype)
             && same_kind(&a.prototype, &b.prototype);
         if !named_alike || !alike(&a.gaussians.means, &b.gaussians.means) {
             return false;
         }
-        let Some(side) = largest_side(&a.prototype) else {
+        let Some(side) = kinds.largest_side(&a.prototype) else {
             return false;
         };
         let spanned: Vec<Vec3> = self.instances[j]
@@ -189,7 +192,22 @@ impl SceneMap {
             .chain(&b.gaussians.means)
             .copied()
             .collect();
-        OrientedBox::principal_length(&spanned, DEFAULT_TRIM) > SPLIT_SIDE_MARGIN * side
+        let length = OrientedBox::principal_length(&spanned, DEFAULT_TRIM);
+        (length > SPLIT_SIDE_MARGIN * side && !both_parts)
+            || two_whole_objects(
+                &a.gaussians.means,
+                &b.gaussians.means,
+                length,
+                kinds.typical_length(&a.prototype),
+                side,
+            )
+    }
+
+    /// Whether more of instance `j`'s points lie nearer `a`'s points than `b`'s.
+    fn nearer_most(&self, j: usize, a: &Gaussians, b: &Gaussians) -> bool {
+        let owner = nearest_owner(&self.instances[j].gaussians.means, &[&a.means, &b.means]);
+        let to_a = owner.iter().filter(|&&k| k == 0).count();
+        to_a > owner.len() - to_a
     }
 
     /// Instance `j` keeps its points nearer `kept`'s than `given`'s and returns the others.
@@ -207,24 +225,9 @@ impl SceneMap {
 
 #[cfg(test)]
 mod tests {
+    use super::super::tests::block;
     use super::*;
     use crate::graph::instance::FusionParams;
-
-    /// Points on the faces of an axis-aligned box (`lo`..`hi`) every 4 cm, as a map holds them.
-    fn block(lo: Vec3, hi: Vec3) -> Gaussians {
-        let steps = ((hi - lo) / 0.04).ceil().as_uvec3();
-        let grid = (0..=steps.x)
-            .flat_map(|i| (0..=steps.y).flat_map(move |j| (0..=steps.z).map(move |k| (i, j, k))));
-        super::super::tests::gaussians_at(grid.filter_map(|(i, j, k)| {
-            let on_face = [
-                i == 0 || i == steps.x,
-                j == 0 || j == steps.y,
-                k == 0 || k == steps.z,
-            ];
-            let t = Vec3::new(i as f32, j as f32, k as f32) / steps.as_vec3().max(Vec3::ONE);
-            on_face.contains(&true).then(|| lo + (hi - lo) * t)
-        }))
-    }
 
     fn sighting(gaussians: Gaussians, prototype: [f32; 3]) -> WindowInstance {
         let support = gaussians.len();
@@ -245,10 +248,12 @@ mod tests {
 
     const CABINET: [f32; 3] = [1.0, 0.0, 0.0];
 
-    /// A vocabulary of one name whose objects are at most `largest_side` long.
+    /// A vocabulary of one name whose objects are at most `largest_side` long, typically
+    /// `typical_length`.
     #[derive(Clone, Copy)]
     struct OneName {
         largest_side: Option<f64>,
+        typical_length: Option<f64>,
     }
 
     impl super::super::Kinds for OneName {
@@ -258,10 +263,14 @@ mod tests {
         fn largest_side(&self, _: &[f32]) -> Option<f64> {
             self.largest_side
         }
+        fn typical_length(&self, _: &[f32]) -> Option<f64> {
+            self.typical_length
+        }
     }
 
     const CABINETS: OneName = OneName {
         largest_side: Some(0.92),
+        typical_length: Some(0.8),
     };
 
     /// The map after a window that saw `together` as one, then one that saw `apart`.
@@ -277,30 +286,6 @@ mod tests {
         map.fuse_named(apart.map(|g| sighting(g, CABINET)).into(), &[], 2, kinds)
             .unwrap();
         map
-    }
-
-    #[test]
-    fn a_rows_cabinets_are_alike_and_a_beds_headboard_and_mattress_or_a_tables_leg_are_not() {
-        let (a, b) = cabinets();
-        assert!(alike(&a.means, &b.means));
-        let mattress = block(Vec3::ZERO, Vec3::new(1.6, 2.0, 0.5));
-        let headboard = block(Vec3::new(0.0, -0.1, 0.0), Vec3::new(1.6, 0.0, 1.0));
-        assert!(!alike(&mattress.means, &headboard.means));
-        let top = block(Vec3::new(0.0, 0.0, 0.7), Vec3::new(1.2, 0.8, 0.74));
-        let leg = block(Vec3::ZERO, Vec3::new(0.05, 0.05, 0.7));
-        assert!(!alike(&top.means, &leg.means));
-    }
-
-    #[test]
-    fn alike_of_degenerate_point_sets_is_false_not_a_panic() {
-        let one = [Vec3::ONE];
-        let (a, _) = cabinets();
-        for degenerate in [&[][..], &one[..], &[Vec3::ONE; 5][..]] {
-            assert!(!alike(degenerate, &a.means), "{} points", degenerate.len());
-            // Two degenerate sets compare at the smallest side: alike, and finite on the way.
-            let _ = alike(degenerate, degenerate);
-        }
-        assert!(!alike(&[Vec3::NAN, Vec3::ZERO], &a.means));
     }
 
     #[test]
@@ -357,6 +342,7 @@ mod tests {
         // Two halves of one 2 m long object (a bed's, at most 2.34 m).
         let beds = OneName {
             largest_side: Some(2.34),
+            typical_length: Some(1.97),
         };
         let map = seen_as_one_then_apart(both.clone(), [a.clone(), b.clone()], beds);
         assert_eq!(map.instances.len(), 1);
@@ -378,12 +364,91 @@ mod tests {
         table.extend(&leg);
         let tables = OneName {
             largest_side: Some(0.5),
+            typical_length: Some(0.4),
         };
         assert_eq!(
             seen_as_one_then_apart(table, [top, leg], tables)
                 .instances
                 .len(),
             1
+        );
+    }
+
+    #[test]
+    fn two_whole_bookshelves_an_instance_grew_over_are_split_and_stay_two() {
+        // Two bookshelves of a row, 0.75 m each: together 1.52 m, under the 1.5 x 1.03 m that two
+        // halves of one object may span, but each as long as one bookshelf.
+        let a = block(Vec3::new(0.0, 0.0, 0.0), Vec3::new(0.75, 0.3, 1.6));
+        let b = block(Vec3::new(0.77, 0.0, 0.0), Vec3::new(1.52, 0.3, 1.6));
+        let bookshelves = OneName {
+            largest_side: Some(1.03),
+            typical_length: Some(0.9),
+        };
+        let mut both = a.clone();
+        both.extend(&b);
+        let mut map = seen_as_one_then_apart(both, [a.clone(), b.clone()], bookshelves);
+        // Fusion folds fragments after the split: seen apart, each whole, they are not folded.
+        assert_eq!(map.instances.len(), 2, "split in two");
+        let ids: Vec<String> = map.instances.iter().map(|i| i.id.clone()).collect();
+        map.fuse_named(
+            vec![sighting(a.clone(), CABINET), sighting(b.clone(), CABINET)],
+            &[],
+            3,
+            bookshelves,
+        )
+        .unwrap();
+        let after: Vec<String> = map.instances.iter().map(|i| i.id.clone()).collect();
+        assert_eq!(
+            after, ids,
+            "the next window that sees them apart keeps both ids"
+        );
+        // The same row without the typical length (a name with only its largest side) is one.
+        let unknown = OneName {
+            typical_length: None,
+            ..bookshelves
+        };
+        let mut both = a.clone();
+        both.extend(&b);
+        assert_eq!(
+            seen_as_one_then_apart(both, [a, b], unknown)
+                .instances
+                .len(),
+            1
+        );
+    }
+
+    #[test]
+    fn the_id_stays_with_the_object_that_holds_most_of_the_instances_points() {
+        // One instance grown over a long cabinet and a shorter one; a window sees them apart,
+        // the shorter first. The id the user was shown stays on the longer cabinet, where most
+        // of its points are, whichever sighting matched it.
+        let long = block(Vec3::new(0.0, 0.0, 0.0), Vec3::new(0.9, 0.6, 0.9));
+        let short = block(Vec3::new(0.94, 0.0, 0.0), Vec3::new(1.6, 0.6, 0.9));
+        let mut both = long.clone();
+        both.extend(&short);
+        let mut map = SceneMap::new(FusionParams::default());
+        map.fuse_named(vec![sighting(both, CABINET)], &[], 1, CABINETS)
+            .unwrap();
+        let id = map.instances[0].id.clone();
+        map.fuse_named(
+            vec![sighting(short, CABINET), sighting(long, CABINET)],
+            &[],
+            2,
+            CABINETS,
+        )
+        .unwrap();
+        assert_eq!(map.instances.len(), 2, "split in two");
+        let kept = map
+            .instances
+            .iter()
+            .find(|i| i.id == id)
+            .expect("the id lives");
+        let (lo, hi) = kept.bounds();
+        assert!(
+            hi.x < 0.92 && lo.x < 0.1,
+            "the long cabinet: x {} .. {}",
+            lo.x,
+            hi.x
         );
     }
 }

@@ -6,6 +6,7 @@
 use glam::Vec3;
 
 use super::footprint::Footprints;
+use super::shapes::{alike, two_whole_objects};
 use super::{Kinds, SceneMap};
 use crate::graph::instance::{bounds, cosine, Instance};
 use crate::recon::boxes::DEFAULT_TRIM;
@@ -150,7 +151,10 @@ impl SceneMap {
     /// prototypes and are, by `same_kind` (the caller's vocabulary: the same best name, not
     /// structure), the same kind of thing. A bed the window grouping cut into its frame, mattress
     /// and headboard becomes one bed again; two chairs that touch stay two unless their
-    /// prototypes and names agree, and a chair against a table never folds into it. A leg under a
+    /// prototypes and names agree, and a chair against a table never folds into it. Two a window
+    /// saw apart ([`SceneMap::seen_apart`]) that are each as long as one object of their name and
+    /// stand side by side ([`super::shapes::two_whole_objects`]: two bookshelves of a row) are
+    /// two objects, not fragments. A leg under a
     /// surface ([`is_leg_of`]) folds whatever it is named, both being objects (`same_kind` of a
     /// prototype with itself: not structure). Returns (absorbed, survivor) id pairs.
     pub fn fold_fragments(&mut self, kinds: &impl Kinds) -> Vec<(String, String)> {
@@ -169,6 +173,8 @@ impl SceneMap {
         let same_kind = |a: &[f32], b: &[f32]| kinds.same_kind(a, b);
         let mut keep = vec![true; self.instances.len()];
         let is_object = |prototype: &[f32]| names_an_object(&same_kind, prototype);
+        // By index, once: instances keep their places while the pairs are judged.
+        let apart = self.seen_apart_indices();
         let folded = self.fold_pairs(&mut keep, touched, |instances, footprints, a, b| {
             let (pa, pb) = (&instances[a].prototype, &instances[b].prototype);
             let (bounds_a, bounds_b) = (footprints.bounds[a], footprints.bounds[b]);
@@ -188,18 +194,19 @@ impl SceneMap {
                 tracing::debug!(a = %instances[a].id, b = %instances[b].id, "fold rule: a back");
                 return true;
             }
+            let (ma, mb) = (&instances[a].gaussians.means, &instances[b].gaussians.means);
+            let seen_apart = apart.contains(&(a.min(b), a.max(b)));
             let fragments = cosine(pa, pb) >= p.duplicate_similarity
                 && footprints.overlap(instances, a, b) >= FRAGMENT_TOUCH
                 && kinds.largest_side(pa).is_none_or(|side| {
-                    let both: Vec<Vec3> = instances[a]
-                        .gaussians
-                        .means
-                        .iter()
-                        .chain(&instances[b].gaussians.means)
-                        .copied()
-                        .collect();
+                    let both: Vec<Vec3> = ma.iter().chain(mb).copied().collect();
                     let union = fit_object_box(&both, DEFAULT_TRIM);
-                    union.size.x.max(union.size.y) <= FRAGMENT_SIDE_MARGIN * side
+                    let length = union.size.x.max(union.size.y);
+                    // Seen apart, each as long as one: two objects of a row, not fragments.
+                    let two = seen_apart
+                        && alike(ma, mb)
+                        && two_whole_objects(ma, mb, length, kinds.typical_length(pa), side);
+                    length <= FRAGMENT_SIDE_MARGIN * side && !two
                 });
             if fragments {
                 tracing::debug!(a = %instances[a].id, b = %instances[b].id, "fold rule: fragments");

@@ -10,6 +10,7 @@ mod contested;
 mod folds;
 mod footprint;
 mod free_space;
+mod shapes;
 
 use std::collections::VecDeque;
 
@@ -32,6 +33,11 @@ pub trait Kinds {
     fn same_kind(&self, a: &[f32], b: &[f32]) -> bool;
     /// The longest horizontal side (m) an object of `prototype`'s kind has; `None` when unknown.
     fn largest_side(&self, _prototype: &[f32]) -> Option<f64> {
+        None
+    }
+    /// The typical longer horizontal side (m) of an object of `prototype`'s kind; `None` when
+    /// unknown.
+    fn typical_length(&self, _prototype: &[f32]) -> Option<f64> {
         None
     }
 }
@@ -105,27 +111,26 @@ impl SceneMap {
         views: &[WindowView],
         stamp_nanos: i64,
     ) -> Result<FusionReport, GraphError> {
-        self.fuse_with(window, views, stamp_nanos, &|_, _| true, &|_| None)
+        self.fuse_with(window, views, stamp_nanos, &|_: &[f32], _: &[f32]| true)
     }
 
-    /// [`SceneMap::fuse`], where map-level duplicates fold only if `same_kind` says so of
-    /// their prototypes, and an instance is split only where `largest_side` knows its name's.
+    /// [`SceneMap::fuse`], where map-level duplicates fold only if `kinds` says their prototypes
+    /// name one kind, and an instance is split only where `kinds` knows its name's sizes.
     fn fuse_with(
         &mut self,
         window: Vec<WindowInstance>,
         views: &[WindowView],
         stamp_nanos: i64,
-        same_kind: &dyn Fn(&[f32], &[f32]) -> bool,
-        largest_side: &dyn Fn(&[f32]) -> Option<f64>,
+        kinds: &dyn Kinds,
     ) -> Result<FusionReport, GraphError> {
+        let same_kind = &|a: &[f32], b: &[f32]| kinds.same_kind(a, b);
         let viewpoint = mean_camera_centre(views);
         let range_noise = range_noise_of(&window, views, viewpoint);
         validate(&window)?;
         let mut report = FusionReport::default();
         let mut window = window;
         let mut association = associate::associate(self, &window, same_kind);
-        let splits =
-            self.split_where_seen_as_two(&mut window, &mut association, same_kind, largest_side);
+        let splits = self.split_where_seen_as_two(&mut window, &mut association, kinds);
         let duplicates = association.duplicates(self, same_kind);
         let (matched, absorbed) = self.merge_or_birth(
             window,
@@ -389,8 +394,7 @@ impl SceneMap {
         kinds: impl Kinds,
     ) -> Result<FusionReport, GraphError> {
         let same_kind = |a: &[f32], b: &[f32]| kinds.same_kind(a, b);
-        let largest_side = |prototype: &[f32]| kinds.largest_side(prototype);
-        let mut report = self.fuse_with(window, views, stamp_nanos, &same_kind, &largest_side)?;
+        let mut report = self.fuse_with(window, views, stamp_nanos, &kinds)?;
         // Pairs are judged again only where an instance changed: this window's (any other pair
         // was judged, as it is, by an earlier fusion), then, rule after rule, the survivors of
         // the last folds, until neither rule folds anything.

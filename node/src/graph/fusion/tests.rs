@@ -319,3 +319,19 @@ fn a_sighting_that_grazes_a_neighbour_reveals_no_duplicate_one_that_spans_it_doe
     let spanning = box_faces(0.0, 0.82, |_| true);
     assert_eq!(row(vec![spanning]).instances.len(), 1);
 }
+
+/// Points on the faces of an axis-aligned box (`lo`..`hi`) every 4 cm, as a map holds them.
+pub(in crate::graph::fusion) fn block(lo: Vec3, hi: Vec3) -> Gaussians {
+    let steps = ((hi - lo) / 0.04).ceil().as_uvec3();
+    let grid = (0..=steps.x)
+        .flat_map(|i| (0..=steps.y).flat_map(move |j| (0..=steps.z).map(move |k| (i, j, k))));
+    gaussians_at(grid.filter_map(|(i, j, k)| {
+        let on_face = [
+            i == 0 || i == steps.x,
+            j == 0 || j == steps.y,
+            k == 0 || k == steps.z,
+        ];
+        let t = Vec3::new(i as f32, j as f32, k as f32) / steps.as_vec3().max(Vec3::ONE);
+        on_face.contains(&true).then(|| lo + (hi - lo) * t)
+    }))
+}
