@@ -451,4 +451,24 @@ mod tests {
             hi.x
         );
     }
+
+    #[test]
+    fn two_pieces_lying_on_an_instance_a_whole_sighting_matched_do_not_split_it() {
+        // A sofa seen whole (the sighting that matches it) and, in the same window, two of its
+        // pieces apart: alike, together longer than 1.5 x its largest side, but neither matched
+        // it nor is as long as a sofa. Two parts split an instance only as two whole objects.
+        let sofa = block(Vec3::ZERO, Vec3::new(2.0, 0.8, 0.5));
+        let left = block(Vec3::ZERO, Vec3::new(0.5, 0.8, 0.5));
+        let right = block(Vec3::new(1.5, 0.0, 0.0), Vec3::new(2.0, 0.8, 0.5));
+        let sofas = OneName {
+            largest_side: Some(1.0),
+            typical_length: Some(2.0),
+        };
+        let mut map = SceneMap::new(FusionParams::default());
+        map.fuse_named(vec![sighting(sofa.clone(), CABINET)], &[], 1, sofas)
+            .unwrap();
+        let window = [sofa, left, right].map(|g| sighting(g, CABINET));
+        map.fuse_named(window.into(), &[], 2, sofas).unwrap();
+        assert_eq!(map.instances.len(), 1);
+    }
 }
