@@ -135,15 +135,13 @@ impl SceneMap {
             }) else {
                 continue;
             };
-            // The id stays with the sighting nearer most of the instance's points: the object
-            // the map mostly held under it.
-            let (kept, leaving) =
-                if self.nearer_most(j, &window[part].gaussians, &window[kept].gaussians) {
-                    (part, kept)
-                } else {
-                    (kept, part)
-                };
-            let given = self.give_away(j, &window[kept].gaussians, &window[leaving].gaussians);
+            let (part_keeps_id, given) =
+                self.divide(j, &window[kept].gaussians, &window[part].gaussians);
+            let (kept, leaving) = if part_keeps_id {
+                (part, kept)
+            } else {
+                (kept, part)
+            };
             let w = &mut window[leaving].gaussians;
             if (given.embedding_dim, given.extra_dim) == (w.embedding_dim, w.extra_dim) {
                 w.extend(&given);
@@ -203,23 +201,28 @@ impl SceneMap {
             )
     }
 
-    /// Whether more of instance `j`'s points lie nearer `a`'s points than `b`'s.
-    fn nearer_most(&self, j: usize, a: &Gaussians, b: &Gaussians) -> bool {
-        let owner = nearest_owner(&self.instances[j].gaussians.means, &[&a.means, &b.means]);
-        let to_a = owner.iter().filter(|&&k| k == 0).count();
-        to_a > owner.len() - to_a
-    }
-
-    /// Instance `j` keeps its points nearer `kept`'s than `given`'s and returns the others.
-    fn give_away(&mut self, j: usize, kept: &Gaussians, given: &Gaussians) -> Gaussians {
+    /// Divide instance `j`'s points between sightings `a` and `b` by the nearer one's points. The
+    /// id stays with the sighting nearer most of them (the object the map mostly held under
+    /// it): `j` keeps that share and returns the other, with whether `b` keeps the id.
+    fn divide(&mut self, j: usize, a: &Gaussians, b: &Gaussians) -> (bool, Gaussians) {
         let points = &self.instances[j].gaussians;
-        let owner = nearest_owner(&points.means, &[&kept.means, &given.means]);
+        let owner = nearest_owner(&points.means, &[&a.means, &b.means]);
+        let to_b = owner.iter().filter(|&&k| k == 1).count();
+        let b_keeps = to_b > owner.len() - to_b;
         let mut shares = partition(points, &owner, 2).into_iter();
-        let (Some(own), Some(away)) = (shares.next(), shares.next()) else {
-            return Gaussians::with_dims(points.embedding_dim, points.extra_dim);
+        let (Some(near_a), Some(near_b)) = (shares.next(), shares.next()) else {
+            return (
+                b_keeps,
+                Gaussians::with_dims(points.embedding_dim, points.extra_dim),
+            );
+        };
+        let (own, away) = if b_keeps {
+            (near_b, near_a)
+        } else {
+            (near_a, near_b)
         };
         self.instances[j].gaussians = own;
-        away
+        (b_keeps, away)
     }
 }
 
@@ -273,6 +276,13 @@ mod tests {
         typical_length: Some(0.8),
     };
 
+    /// `a`'s points and `b`'s, as one sighting of both.
+    fn joined(a: &Gaussians, b: &Gaussians) -> Gaussians {
+        let mut both = a.clone();
+        both.extend(b);
+        both
+    }
+
     /// The map after a window that saw `together` as one, then one that saw `apart`.
     fn seen_as_one_then_apart(
         together: Gaussians,
@@ -297,8 +307,7 @@ mod tests {
     #[test]
     fn an_instance_a_window_sees_as_two_alike_objects_is_split_between_them() {
         let (a, b) = cabinets();
-        let mut both = a.clone();
-        both.extend(&b);
+        let both = joined(&a, &b);
         // The map grew one instance over both cabinets (a window grouped the row as one), then a
         // window sees them apart.
         let mut map = seen_as_one_then_apart(both, [a.clone(), b.clone()], CABINETS);
@@ -316,8 +325,7 @@ mod tests {
         assert!(map.seen_apart(ids[0], ids[1]));
         // Whatever a window that groups the row as one again does to the map, the next window
         // that sees them apart leaves them apart.
-        let mut again = a.clone();
-        again.extend(&b);
+        let again = joined(&a, &b);
         map.fuse_named(vec![sighting(again, CABINET)], &[], 3, CABINETS)
             .unwrap();
         map.fuse_named(
@@ -337,8 +345,7 @@ mod tests {
     #[test]
     fn what_one_object_of_its_name_could_be_or_a_name_without_priors_is_not_split() {
         let (a, b) = cabinets();
-        let mut both = a.clone();
-        both.extend(&b);
+        let both = joined(&a, &b);
         // Two halves of one 2 m long object (a bed's, at most 2.34 m).
         let beds = OneName {
             largest_side: Some(2.34),
@@ -360,8 +367,7 @@ mod tests {
         // A table top and its leg, grouped apart by one window: the leg is a part, not a split.
         let top = block(Vec3::new(0.0, 0.0, 0.7), Vec3::new(1.2, 0.8, 0.74));
         let leg = block(Vec3::new(0.0, 0.0, 0.0), Vec3::new(0.05, 0.05, 0.7));
-        let mut table = top.clone();
-        table.extend(&leg);
+        let table = joined(&top, &leg);
         let tables = OneName {
             largest_side: Some(0.5),
             typical_length: Some(0.4),
@@ -384,8 +390,7 @@ mod tests {
             largest_side: Some(1.03),
             typical_length: Some(0.9),
         };
-        let mut both = a.clone();
-        both.extend(&b);
+        let both = joined(&a, &b);
         let mut map = seen_as_one_then_apart(both, [a.clone(), b.clone()], bookshelves);
         // Fusion folds fragments after the split: seen apart, each whole, they are not folded.
         assert_eq!(map.instances.len(), 2, "split in two");
@@ -407,8 +412,7 @@ mod tests {
             typical_length: None,
             ..bookshelves
         };
-        let mut both = a.clone();
-        both.extend(&b);
+        let both = joined(&a, &b);
         assert_eq!(
             seen_as_one_then_apart(both, [a, b], unknown)
                 .instances
@@ -424,19 +428,9 @@ mod tests {
         // of its points are, whichever sighting matched it.
         let long = block(Vec3::new(0.0, 0.0, 0.0), Vec3::new(0.9, 0.6, 0.9));
         let short = block(Vec3::new(0.94, 0.0, 0.0), Vec3::new(1.6, 0.6, 0.9));
-        let mut both = long.clone();
-        both.extend(&short);
-        let mut map = SceneMap::new(FusionParams::default());
-        map.fuse_named(vec![sighting(both, CABINET)], &[], 1, CABINETS)
-            .unwrap();
-        let id = map.instances[0].id.clone();
-        map.fuse_named(
-            vec![sighting(short, CABINET), sighting(long, CABINET)],
-            &[],
-            2,
-            CABINETS,
-        )
-        .unwrap();
+        let map = seen_as_one_then_apart(joined(&long, &short), [short, long], CABINETS);
+        // Ids are numbered as instances are born: the lowest is the one the row had.
+        let id = map.instances.iter().map(|i| i.id.clone()).min().unwrap();
         assert_eq!(map.instances.len(), 2, "split in two");
         let kept = map
             .instances

@@ -203,10 +203,10 @@ impl SceneMap {
                     let union = fit_object_box(&both, DEFAULT_TRIM);
                     let length = union.size.x.max(union.size.y);
                     // Seen apart, each as long as one: two objects of a row, not fragments.
-                    let two = seen_apart
-                        && alike(ma, mb)
-                        && two_whole_objects(ma, mb, length, kinds.typical_length(pa), side);
-                    length <= FRAGMENT_SIDE_MARGIN * side && !two
+                    length <= FRAGMENT_SIDE_MARGIN * side
+                        && !(seen_apart
+                            && alike(ma, mb)
+                            && two_whole_objects(ma, mb, length, kinds.typical_length(pa), side))
                 });
             if fragments {
                 tracing::debug!(a = %instances[a].id, b = %instances[b].id, "fold rule: fragments");

@@ -18,11 +18,13 @@ const ALIKE_MIN_SIDE_M: f64 = 0.15;
 /// share of the name's typical length (`typical_length_m`). Read on layouts 0-19, 40-59, 320-339
 /// and 360-379 (recall@0.25 / @0.5 / precision summed over the four, points: 0.6 +4.4 / +7.2 /
 /// -2.3, 0.7 +3.8 / +6.3 / -1.3, 0.8 +2.5 / +3.9 / -0.9: at 0.6 pieces of a desk, 0.9 m of its
-/// 1.4, were split as two desks).
+/// 1.4, were split as two desks). Checked on layouts 440-459 (+2.5 / +0.6 / +1.4), 400-419 and
+/// benchmark 11800-11819, 12000-12019 (no change), which no setting was read from.
 const WHOLE_SHARE: f64 = 0.7;
 /// Two whole objects stand side by side: their boxes overlap at most this much (3D IoU). Two
 /// sightings of one chair in one window, a little apart through depth noise, overlap more
-/// (benchmark 7010 and 8002: a chair split into two without it).
+/// (benchmark 7010 and 8002: a chair split into two without it). A choice, not fitted; checked
+/// with [`WHOLE_SHARE`] on the ranges it names.
 const SIDE_BY_SIDE_IOU: f64 = 0.1;
 /// Whether two point sets are of about one size ([`ALIKE_SIDE_RATIO`]).
 pub(super) fn alike(a: &[Vec3], b: &[Vec3]) -> bool {
