@@ -67,6 +67,11 @@ pub struct VocabularyClass {
     /// Its objects stand on the floor: a box seen floating above it reaches down to it.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub stands_on_floor: bool,
+    /// The height (m) its objects typically have, for classes that rest on something other than
+    /// the floor: a box seen much shorter (a lamp's shade without its stand) grows down toward
+    /// it, no lower than the surface under it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub typical_height_m: Option<f64>,
     /// What one does with its objects ("sit on", "wash hands"): a query for "the thing you can
     /// X" finds the class whose functions (or name) the text encoder puts nearest X.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
@@ -94,6 +99,7 @@ impl VocabularyFile {
                 class.smallest_depth_m,
                 class.typical_length_m,
                 class.largest_side_m,
+                class.typical_height_m,
             ];
             if lengths
                 .iter()
@@ -194,6 +200,12 @@ impl ClassPriors {
             .is_none_or(|side| length_m <= NAME_LENGTH_MARGIN * side)
     }
 
+    /// The typical height of `name`'s objects, if it has one (classes that do not stand on the
+    /// floor).
+    pub fn typical_height(&self, name: &str) -> Option<f64> {
+        self.class(name)?.typical_height_m
+    }
+
     /// Whether `name`'s objects stand on the floor (false when unknown).
     pub fn stands_on_floor(&self, name: &str) -> bool {
         self.class(name).is_some_and(|c| c.stands_on_floor)
@@ -246,6 +258,7 @@ mod tests {
             "typical_depth_m: -0.4",
             "largest_side_m: .nan",
             "typical_length_m: 0",
+            "typical_height_m: -0.5",
             "typical_depth_m: 0.3\n    smallest_depth_m: 0.5",
         ] {
             let text = format!("classes:\n  - name: crate\n    {bad}\n");
@@ -269,6 +282,7 @@ mod tests {
         assert_eq!(priors.largest_side("coat rack"), Some(0.6));
         assert_eq!(priors.largest_side("fire extinguisher"), None);
         assert_eq!(priors.typical_length("coat rack"), None);
+        assert_eq!(priors.typical_height("whiteboard"), None);
         assert_eq!(priors.functions("whiteboard"), ["write on"]);
         assert!(priors.functions("coat rack").is_empty());
         assert_eq!(ClassPriors::default().smallest_depth("chair"), None);
