@@ -136,7 +136,9 @@ fn list<'a>(
                 let b = match name.and_then(|n| priors.typical_height(n)) {
                     Some(height) => amodal::grown_down_to_rest(b, height, || {
                         let floor = map_walls(&walls, map, vocabulary).floor();
-                        surface_under(&b, i, map, floor)
+                        let bounds = bounds
+                            .get_or_init(|| map.instances.iter().map(Instance::bounds).collect());
+                        surface_under(&b, i, map, bounds, floor)
                     }),
                     None => b,
                 };
@@ -290,11 +292,13 @@ const OTHER_SAMPLES: usize = 1024;
 /// The height of the highest surface under `placed` (m): the highest point of `map`'s other
 /// instances below its bottom within its footprint grown by [`SUPPORT_MARGIN_M`], or the
 /// `floor`; `-inf` when neither is known. Read only for boxes that may grow
-/// ([`amodal::grown_down_to_rest`]).
+/// ([`amodal::grown_down_to_rest`]); `bounds` (each instance's, in the map's order) skip the
+/// instances nowhere under it.
 fn surface_under(
     placed: &OrientedBox,
     instance: &Instance,
     map: &SceneMap,
+    bounds: &[(Vec3, Vec3)],
     floor: Option<f32>,
 ) -> f64 {
     let bottom = placed.centre.z - placed.size.z / 2.0;
@@ -312,10 +316,22 @@ fn surface_under(
         let (along, across) = (d.x * cos + d.y * sin, d.y * cos - d.x * sin);
         along.abs() <= half_x && across.abs() <= half_y && f64::from(p.z) < bottom - BELOW_M
     };
+    // The grown footprint's reach from its centre, whatever its yaw.
+    let reach = half_x.hypot(half_y) as f32;
+    let centre = placed.centre.as_vec3();
+    let below = (bottom - BELOW_M) as f32;
+    let near = |(lo, hi): &(Vec3, Vec3)| {
+        lo.x - centre.x <= reach
+            && centre.x - hi.x <= reach
+            && lo.y - centre.y <= reach
+            && centre.y - hi.y <= reach
+            && lo.z < below
+    };
     map.instances
         .iter()
-        .filter(|other| other.id != instance.id)
-        .flat_map(|other| other.gaussians.means.iter().filter(under))
+        .zip(bounds)
+        .filter(|(other, b)| other.id != instance.id && near(b))
+        .flat_map(|(other, _)| other.gaussians.means.iter().filter(under))
         .map(|p| f64::from(p.z))
         .fold(floor, f64::max)
 }
