@@ -266,11 +266,7 @@ fn others_within<'m>(
         .iter()
         .zip(bounds)
         .filter(move |(other, _)| other.id != id)
-        .filter(move |(_, (lo, hi))| {
-            (lo.x - centre.x <= reach && centre.x - hi.x <= reach)
-                && (lo.y - centre.y <= reach && centre.y - hi.y <= reach)
-                && (lo.z < top && hi.z > bottom)
-        })
+        .filter(move |(_, b)| within_reach(b, centre, reach) && b.0.z < top && b.1.z > bottom)
         .flat_map(move |(other, _)| {
             let step = other.gaussians.len().div_ceil(OTHER_SAMPLES).max(1);
             other
@@ -281,6 +277,14 @@ fn others_within<'m>(
                 .copied()
                 .filter(near)
         })
+}
+
+/// Whether bounds (`lo`, `hi`) come within `reach` of `centre` horizontally (per axis).
+fn within_reach((lo, hi): &(Vec3, Vec3), centre: Vec3, reach: f32) -> bool {
+    lo.x - centre.x <= reach
+        && centre.x - hi.x <= reach
+        && lo.y - centre.y <= reach
+        && centre.y - hi.y <= reach
 }
 
 /// Points of another instance above this (m) over the grown box's bottom block it: the floor it
@@ -320,17 +324,12 @@ fn surface_under(
     let reach = half_x.hypot(half_y) as f32;
     let centre = placed.centre.as_vec3();
     let below = (bottom - BELOW_M) as f32;
-    let near = |(lo, hi): &(Vec3, Vec3)| {
-        lo.x - centre.x <= reach
-            && centre.x - hi.x <= reach
-            && lo.y - centre.y <= reach
-            && centre.y - hi.y <= reach
-            && lo.z < below
-    };
     map.instances
         .iter()
         .zip(bounds)
-        .filter(|(other, b)| other.id != instance.id && near(b))
+        .filter(|(other, b)| {
+            other.id != instance.id && within_reach(b, centre, reach) && b.0.z < below
+        })
         .flat_map(|(other, _)| other.gaussians.means.iter().filter(under))
         .map(|p| f64::from(p.z))
         .fold(floor, f64::max)
@@ -342,7 +341,8 @@ fn surface_under(
 /// typical height bounded it) cost benchmark 7000-7019 recall@0.25 -3.8 points, -1.6 with this
 /// margin, pillows and boxes grown to the floor.
 const SUPPORT_MARGIN_M: f64 = 0.25;
-/// A point at least this far (m) under a box's bottom is under it, not its own bottom's noise.
+/// A point at least this far (m) under a box's bottom is under it, not its own bottom's noise (a
+/// choice: the floor estimate's 2 cm bands).
 const BELOW_M: f64 = 0.02;
 
 /// `placed` extended down to the map's floor when the instance's best name `stands` there (its
