@@ -131,7 +131,9 @@ fn list<'a>(
                 publish(surface).filter(|completed| deepened_face(&surface, completed))
             });
             completed_face.or_else(|| publish(fitted.points)).map(|b| {
-                let b = seen_in_part(b, i, name.map(|n| (n, priors)), map, &bounds);
+                let b = seen_in_part(b, i, name.map(|n| (n, priors)), map, &bounds, || {
+                    map_walls(&walls, map, vocabulary)
+                });
                 let stands = name.is_some_and(|n| priors.stands_on_floor(n));
                 let b = match name.and_then(|n| priors.typical_height(n)) {
                     Some(height) => amodal::grown_down_to_rest(b, height, || {
@@ -214,14 +216,17 @@ pub(super) fn seen_from_one_side<'w>(
 }
 
 /// `placed` grown along its length to its name's typical length where it is an object seen in
-/// part, as far as no view saw past the end it grows from and no other instance of `map` stands
-/// there ([`amodal::grown_to_length`]); as it is without a name or a typical length.
-fn seen_in_part(
+/// part, as far as no view saw past the end it grows from, no other instance of `map` stands
+/// there and no wall rises over it ([`Walls::over`]: a desk against a wall, seen as a square of
+/// its top, grew through the wall; benchmark 12602 and 12608) ([`amodal::grown_to_length`]); as
+/// it is without a name or a typical length.
+fn seen_in_part<'w>(
     placed: OrientedBox,
     instance: &Instance,
     named: Option<(&str, &ClassPriors)>,
     map: &SceneMap,
     bounds: &std::cell::OnceCell<Vec<(Vec3, Vec3)>>,
+    walls: impl FnOnce() -> &'w Walls,
 ) -> OrientedBox {
     let Some((name, priors)) = named else {
         return placed;
@@ -236,6 +241,8 @@ fn seen_in_part(
     let mut blocked = instance.seen_free.clone();
     let bounds = bounds.get_or_init(|| map.instances.iter().map(Instance::bounds).collect());
     blocked.extend(others_within(&placed, instance, map, bounds, length));
+    let reach = (length + placed.size.x.max(placed.size.y)) as f32;
+    blocked.extend(walls().over(&placed, reach));
     amodal::grown_to_length(placed, &blocked, length, priors.typical_depth(name))
 }
 
@@ -480,6 +487,60 @@ mod tests {
         };
         let (lo, hi) = x_extent(&listed_box(&hemmed, "piece"));
         assert!(hi < 0.53 && lo > -0.41 && lo < -0.2, "{lo} {hi}");
+    }
+
+    #[test]
+    fn a_desk_seen_in_part_against_a_wall_does_not_grow_through_the_wall_hidden_behind_it() {
+        // A 0.6 m square of a desk top's length (x 0 to 0.6, y 0 to 0.6), chairs at both of
+        // its x ends, against a wall at y = -0.03 that the desk hides up to its top: the wall
+        // shows above the desk and beside it, out of the desk's width.
+        let structure = |id: &str, lo: Vec3, hi: Vec3| cuboid(id, lo, hi, [0.0, 1.0]);
+        let map = SceneMap {
+            instances: vec![
+                cuboid(
+                    "piece",
+                    Vec3::new(0.0, 0.0, 0.0),
+                    Vec3::new(0.6, 0.6, 0.75),
+                    DESK,
+                ),
+                cuboid(
+                    "left",
+                    Vec3::new(-0.5, 0.0, 0.0),
+                    Vec3::new(-0.05, 0.45, 0.9),
+                    [0.0; 2],
+                ),
+                cuboid(
+                    "right",
+                    Vec3::new(0.65, 0.0, 0.0),
+                    Vec3::new(1.1, 0.45, 0.9),
+                    [0.0; 2],
+                ),
+                structure(
+                    "floor",
+                    Vec3::new(-3.0, -3.0, -0.02),
+                    Vec3::new(4.0, 4.0, 0.0),
+                ),
+                structure(
+                    "above",
+                    Vec3::new(-0.6, -0.04, 0.77),
+                    Vec3::new(1.2, -0.02, 2.5),
+                ),
+                structure(
+                    "beside",
+                    Vec3::new(-3.0, -0.04, 0.0),
+                    Vec3::new(-1.2, -0.02, 2.5),
+                ),
+            ],
+            ..SceneMap::default()
+        };
+        let b = listed_box(&map, "piece");
+        let half = if b.yaw.cos().abs() > 0.5 {
+            b.size.y
+        } else {
+            b.size.x
+        } / 2.0;
+        let (lo, hi) = (b.centre.y - half, b.centre.y + half);
+        assert!(lo > -0.05 && hi - lo > 1.0, "{lo} {hi}");
     }
 
     #[test]

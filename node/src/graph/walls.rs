@@ -77,6 +77,25 @@ impl Walls {
         Self { points, floor }
     }
 
+    /// The structure points over `placed`, at most [`BESIDE_M`] above its top and within `reach`
+    /// of its centre horizontally, brought down to its mid-height: the wall a piece of furniture
+    /// stands against is hidden behind it at its own height and seen above it, as
+    /// [`Walls::wall_towards`] reads it.
+    pub fn over(&self, placed: &OrientedBox, reach: f32) -> impl Iterator<Item = Vec3> + '_ {
+        let (_, top) = z_range(placed);
+        let (low, high) = (top as f32, (top + BESIDE_M) as f32);
+        let centre = placed.centre.as_vec3();
+        self.points
+            .iter()
+            .filter(move |p| {
+                p.z > low
+                    && p.z <= high
+                    && (p.x - centre.x).abs() <= reach
+                    && (p.y - centre.y).abs() <= reach
+            })
+            .map(move |p| Vec3::new(p.x, p.y, centre.z))
+    }
+
     /// Where a box thin along some axis (a surface seen from one side) belongs: `None` when it
     /// is the room's own surface (a patch lying on the floor or anything whose top is within
     /// [`FLOOR_TOP_M`] of it, or a vertical patch in the plane
