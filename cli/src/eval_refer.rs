@@ -108,6 +108,7 @@ struct Group {
     /// Over those whose anchors are in the map too (both of "between" and of two hops, any one
     /// of the others): what the reasoner answers when the map holds everything it names.
     accuracy_when_anchors_in_map_too: f64,
+    /// Over expressions with one target that is no refusal test: the answer's box against it.
     acc_at_25: f64,
     acc_at_50: f64,
     /// Over expressions whose targets some held-out view sees.
@@ -125,10 +126,12 @@ fn group(records: &[&ReferRecord]) -> Group {
         .copied()
         .filter(|r| r.anchors_in_map)
         .collect();
+    // Box accuracy is over expressions with one target to box: a refusal test has none (its
+    // answer is right when it says what was not seen, which selection accuracy counts).
     let single: Vec<&ReferRecord> = records
         .iter()
         .copied()
-        .filter(|r| r.targets.len() == 1)
+        .filter(|r| r.targets.len() == 1 && r.truth != Truth::Refusal)
         .collect();
     Group {
         queries: records.len(),
@@ -506,6 +509,45 @@ mod tests {
         assert_eq!(g.targets_in_map, 2.0 / 3.0);
         assert_eq!(g.accuracy_when_in_map, 0.5);
         assert_eq!(g.accuracy_when_anchors_in_map_too, 1.0);
+    }
+
+    #[test]
+    fn box_accuracy_counts_the_boxes_of_single_targets_not_refusal_tests() {
+        // An observed target boxed at IoU 0.6, one boxed at 0.3, a refusal test refused (right,
+        // nothing to box): Acc@0.25 2 of 2, Acc@0.5 1 of 2, selection 2 of 3.
+        let record = |truth: Truth, iou: f64, correct: bool| ReferRecord {
+            scene: "s".into(),
+            truth,
+            expression: "the lamp".into(),
+            relation: "class".into(),
+            view_dependent: false,
+            hard: false,
+            distractors: 0,
+            targets: vec![3],
+            answered: if truth == Truth::Refusal {
+                vec![]
+            } else {
+                vec![3]
+            },
+            correct,
+            topk_hit: correct,
+            targets_in_map: truth != Truth::Refusal,
+            anchors_in_map: true,
+            iou,
+            mask_iou: None,
+            millis: 1.0,
+            success: truth != Truth::Refusal,
+            message: String::new(),
+            reasoner_used: "builtin".into(),
+        };
+        let records = [
+            record(Truth::Observed, 0.6, true),
+            record(Truth::Observed, 0.3, false),
+            record(Truth::Refusal, 0.0, true),
+        ];
+        let g = group(&records.iter().collect::<Vec<_>>());
+        assert_eq!((g.acc_at_25, g.acc_at_50), (1.0, 0.5));
+        assert_eq!(g.selection_accuracy, 2.0 / 3.0);
     }
 
     #[test]
