@@ -143,6 +143,11 @@ fn a_headboard_folds_into_its_bed_but_not_into_the_twin_bed_beside_it() {
     let chair = (Vec3::new(0.0, 0.0, 0.0), Vec3::new(0.45, 0.45, 0.9));
     let back_of_the_chair_behind = (Vec3::new(0.0, 0.7, 0.45), Vec3::new(0.45, 0.75, 0.9));
     assert!(!is_back_of(back_of_the_chair_behind, chair, 0.0));
+    // A box on a refrigerator's top (2.18 m up), seen thin from below, beside a box on the
+    // floor: it starts far above that box's top, so it is no back of it.
+    let floor_box = (Vec3::new(4.2, 4.7, 0.0), Vec3::new(4.5, 4.95, 0.25));
+    let box_on_top = (Vec3::new(4.25, 5.4, 2.18), Vec3::new(4.6, 5.5, 2.33));
+    assert!(!is_back_of(box_on_top, floor_box, 0.0));
     // Farther than the gap, in the seat's middle, or without finite bounds: no back.
     let far = (Vec3::new(7.7, 1.1, 0.48), Vec3::new(7.85, 3.0, 1.2));
     let across_the_middle = (Vec3::new(5.8, 1.1, 0.48), Vec3::new(5.95, 3.0, 1.2));
