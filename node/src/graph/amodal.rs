@@ -153,8 +153,8 @@ const ROOM_SHARE_TIE: f64 = 0.05;
 /// Growth under this (m) is none: the points' own rounding.
 const MIN_GROWTH_M: f64 = 0.01;
 
-/// `fitted` grown along its length to `length` where it is an object seen in part (see
-/// [`SEEN_IN_PART_SHARE`]: both horizontal sides under that share of `length`), each end no
+/// `fitted` grown along its length to `length` where it is an object seen in part
+/// ([`is_seen_in_part`]), each end no
 /// further than the nearest of the `blocked` points beyond it (seen free, or another object's);
 /// half the missing length on either end where both have room. Its length is the side along
 /// which more of the missing length has room, or where both have as much, the side whose other
@@ -167,10 +167,10 @@ pub fn grown_to_length(
     depth: Option<f64>,
 ) -> OrientedBox {
     let size = fitted.size;
-    if !(fitted.centre.is_finite() && size.is_finite() && is_seen_in_part(&fitted, length)) {
+    let depth = depth.filter(|d| *d > 0.0);
+    if !(fitted.centre.is_finite() && size.is_finite() && is_seen_in_part(&fitted, length, depth)) {
         return fitted;
     }
-    let depth = depth.filter(|d| *d > 0.0);
     let growth = |along_x: bool| {
         // A face's thin side is its depth, the face completion's to grow, never its length.
         let (side, across) = if along_x {
@@ -213,12 +213,25 @@ pub fn grown_to_length(
     chosen.applied_to(fitted)
 }
 
-/// Whether `fitted` may be a piece of an object `length` long ([`SEEN_IN_PART_SHARE`]): both
-/// horizontal sides under that share of it (false for a length that is no positive number).
-pub fn is_seen_in_part(fitted: &OrientedBox, length: f64) -> bool {
-    length.is_finite()
-        && length > 0.0
-        && fitted.size.x.max(fitted.size.y) < SEEN_IN_PART_SHARE * length
+/// Whether `fitted` may be a piece of an object `length` long and `depth` deep
+/// ([`SEEN_IN_PART_SHARE`]): both horizontal sides under that share of the length, or, seen
+/// across its whole depth (its longer side nearer the depth than the length, within
+/// [`DEPTH_MARGIN`] of it), the other side under that share (a bed seen as its foot end, 1.64 m
+/// across and 0.76 m of its 2 m length: benchmark 8006). False for a length that is no positive
+/// number.
+pub fn is_seen_in_part(fitted: &OrientedBox, length: f64, depth: Option<f64>) -> bool {
+    if !(length.is_finite() && length > 0.0) {
+        return false;
+    }
+    let (short, long) = (
+        fitted.size.x.min(fitted.size.y),
+        fitted.size.x.max(fitted.size.y),
+    );
+    let across_depth = depth.filter(|d| *d > 0.0 && *d < length).is_some_and(|d| {
+        let (to_depth, to_length) = ((long / d).ln().abs(), (long / length).ln().abs());
+        to_depth < to_length && to_depth <= DEPTH_MARGIN.ln()
+    });
+    long < SEEN_IN_PART_SHARE * length || (across_depth && short < SEEN_IN_PART_SHARE * length)
 }
 
 /// How a box grows along one horizontal axis: by `ahead` along the axis' direction and `behind`
@@ -616,10 +629,10 @@ mod tests {
         let above = past_end(&piece, 1.0, 0.3) + Vec3::new(0.0, 0.0, 1.0);
         let grown = grown_to_length(piece, &[beside, above], 1.38, Some(0.69));
         assert!((grown.centre - piece.centre).length() < 1e-9, "{grown:?}");
-        // A box whose longer side is at least SEEN_IN_PART_SHARE of the typical length is no
-        // piece, however short its other side.
+        // A box whose longer side is at least SEEN_IN_PART_SHARE of the typical length, and
+        // nearer the length than the depth, is no piece, however short its other side.
         let mut whole = piece;
-        whole.size.x = SEEN_IN_PART_SHARE * 1.38 + 0.01;
+        whole.size.x = 1.0;
         whole.size.y = 0.3;
         assert_eq!(grown_to_length(whole, &[], 1.38, Some(0.69)), whole);
     }
@@ -640,6 +653,38 @@ mod tests {
             (grown.size.y - 1.38).abs() < 1e-9 && grown.size.x == 0.3,
             "{grown:?}"
         );
+    }
+
+    #[test]
+    fn an_object_seen_across_its_whole_depth_grows_along_its_length_but_a_whole_one_does_not() {
+        // A bed's foot end (the default vocabulary's bed: 1.97 m long, 1.55 m deep): 1.64 m
+        // across and 0.76 m of its length, the camera beyond its foot (free space at y = 0.6).
+        let foot = OrientedBox {
+            centre: DVec3::new(0.0, 0.0, 0.25),
+            size: DVec3::new(1.64, 0.76, 0.5),
+            yaw: 0.0,
+        };
+        let beyond_the_foot = [Vec3::new(0.0, 0.6, 0.25)];
+        let grown = grown_to_length(foot, &beyond_the_foot, 1.97, Some(1.55));
+        let (lo, hi) = (
+            grown.centre.y - grown.size.y / 2.0,
+            grown.centre.y + grown.size.y / 2.0,
+        );
+        assert!(
+            (grown.size.y - 1.97).abs() < 1e-9 && grown.size.x == 1.64 && hi <= 0.51,
+            "{grown:?} {lo} {hi}"
+        );
+        // A cabinet smaller than the typical one (0.8 m long, 0.5 m deep), seen whole: its
+        // longer side is nearer the length than the depth, so nothing is missing.
+        let cabinet = OrientedBox {
+            centre: DVec3::new(0.0, 0.0, 0.9),
+            size: DVec3::new(0.72, 0.45, 1.8),
+            yaw: 0.0,
+        };
+        assert!(!is_seen_in_part(&cabinet, 0.8, Some(0.5)));
+        assert_eq!(grown_to_length(cabinet, &[], 0.8, Some(0.5)), cabinet);
+        // Without a depth prior, only the old rule: both sides short of the length.
+        assert!(!is_seen_in_part(&foot, 1.97, None) && is_seen_in_part(&foot, 1.97, Some(1.55)));
     }
 
     #[test]

@@ -235,7 +235,7 @@ fn seen_in_part<'w>(
         return placed;
     };
     // Blockers are gathered only for a box that may grow.
-    if !amodal::is_seen_in_part(&placed, length) {
+    if !amodal::is_seen_in_part(&placed, length, priors.typical_depth(name)) {
         return placed;
     }
     let mut blocked = instance.seen_free.clone();
