@@ -667,6 +667,28 @@ fn grouping_joins_one_instance_split_into_two_modes() {
 }
 
 #[test]
+fn a_long_object_named_by_a_name_that_fits_keeps_no_share_for_names_that_cannot_be_that_long() {
+    // A table 1.2 m long whose features leave a chair a real share: the table stands, and the
+    // chair (never longer than 0.52 m) keeps nothing, so "all the chairs" does not answer it.
+    let v = vocabulary(0.05);
+    let tableish = [0.85, 0.9, 0.3];
+    let plain = v.probabilities(&tableish);
+    assert!(plain[0] > 0.2 && plain[1] > plain[0], "{plain:?}");
+    let p = v.probabilities_given(&tableish, Some(1.2));
+    assert_eq!(p[0], 0.0, "{p:?}");
+    assert!(
+        p[1] > plain[1] && (p.iter().sum::<f32>() - 1.0).abs() < 1e-5,
+        "{p:?}"
+    );
+    assert!(
+        (p[2] / p[1] - plain[2] / plain[1]).abs() < 1e-5,
+        "structure keeps its share"
+    );
+    // At a chair's length nothing changes.
+    assert_eq!(v.probabilities_given(&tableish, Some(0.5)), plain);
+}
+
+#[test]
 fn nothing_the_vocabulary_names_is_longer_than_twice_its_longest_object() {
     // chair (0.52 m at most) and table (1.38 m): nothing of these is 3 m long; a phrase
     // without priors could be anything.

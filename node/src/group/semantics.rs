@@ -371,10 +371,10 @@ impl Vocabulary {
         softmax(&cosines, self.temperature)
     }
 
-    /// p(phrase | prototype, length): [`Vocabulary::probabilities`], unless the best phrase's
-    /// objects are never `length_m` long ([`ClassPriors::admits_length`]: a table seen whole is
-    /// no box, however box-like its features): then the object phrases that admit the length,
-    /// renormalised. Structure ([`OTHER_PHRASE`]) takes no share that way: what the features call
+    /// p(phrase | prototype, length): [`Vocabulary::probabilities`] less the object phrases whose
+    /// objects are never `length_m` long ([`ClassPriors::admits_length`]), renormalised; where
+    /// the best phrase is one of those (a table seen whole is no box, however box-like its
+    /// features), the object phrases that admit the length, renormalised. Structure ([`OTHER_PHRASE`]) takes no share that way: what the features call
     /// an object stays one. As without a length when none is given, the features call it
     /// structure, or the phrases that admit it hold less than [`MIN_ADMITTED_SHARE`].
     pub fn probabilities_given(&self, prototype: &[f32], length_m: Option<f64>) -> Vec<f32> {
@@ -385,8 +385,29 @@ impl Vocabulary {
         let object = |i: usize| self.phrases[i] != OTHER_PHRASE;
         let admitted = |i: usize| object(i) && self.priors.admits_length(&self.phrases[i], length);
         let best = (0..p.len()).max_by(|&a, &b| p[a].total_cmp(&p[b]).then(b.cmp(&a)));
-        if best.is_none_or(|b| !object(b) || admitted(b)) {
+        if best.is_none_or(|b| !object(b)) {
             return p;
+        }
+        if best.is_some_and(admitted) {
+            // The name stands; the object names that could not be this long lose their share,
+            // so a query for one of them does not answer it (a 1.1 m table whose second name is
+            // chair answered "all the chairs" where no chair was seen: benchmark 12810).
+            if (0..p.len()).all(|i| admitted(i) || !object(i)) {
+                return p;
+            }
+            let kept: f32 = (0..p.len())
+                .filter(|&i| admitted(i) || !object(i))
+                .map(|i| p[i])
+                .sum();
+            return (0..p.len())
+                .map(|i| {
+                    if admitted(i) || !object(i) {
+                        p[i] / kept
+                    } else {
+                        0.0
+                    }
+                })
+                .collect();
         }
         let kept: f32 = (0..p.len()).filter(|&i| admitted(i)).map(|i| p[i]).sum();
         if kept < MIN_ADMITTED_SHARE {
