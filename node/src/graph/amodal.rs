@@ -135,7 +135,8 @@ pub fn grown_down_to_rest(
 /// name's typical length, it grows to it along its length, but only where no view saw past its end
 /// ([`crate::graph::Instance::seen_free`]: free space just beyond an end means the object ends
 /// there) and no other instance's points stand (a neighbour in a row, a wall). A box at least this
-/// share of the typical length is left as it is. Read on benchmark 7000-7019, 8000-8019 and layouts
+/// share of the typical length along both sides (or, seen across its whole depth, along the other
+/// side: [`is_seen_in_part`]) is left as it is. Read on benchmark 7000-7019, 8000-8019 and layouts
 /// 0-59 (0.75 gained one object there, history.md); checked on benchmark 11200, 11400, 11600 and
 /// layouts 320, 360 (20 scenes each), which no setting was read from.
 pub const SEEN_IN_PART_SHARE: f64 = 0.6;
