@@ -285,6 +285,18 @@ pub enum Standing {
     Left,
 }
 
+/// `p` with the entries `keep` refuses zeroed and the others divided by their sum (a distribution
+/// stays one); `p` itself when `keep` refuses none or the kept entries hold nothing.
+fn renormalised(p: Vec<f32>, keep: impl Fn(usize) -> bool) -> Vec<f32> {
+    let kept: f32 = (0..p.len()).filter(|&i| keep(i)).map(|i| p[i]).sum();
+    if (0..p.len()).all(&keep) || kept.is_nan() || kept <= 0.0 {
+        return p;
+    }
+    (0..p.len())
+        .map(|i| if keep(i) { p[i] / kept } else { 0.0 })
+        .collect()
+}
+
 impl Vocabulary {
     /// Where an instance with `prototype`, `gaussians` Gaussians and seen by `sightings` windows
     /// stands: in the object list when not structure (walls, floor, ceiling: the semantic model's
@@ -374,9 +386,10 @@ impl Vocabulary {
     /// p(phrase | prototype, length): [`Vocabulary::probabilities`] less the object phrases whose
     /// objects are never `length_m` long ([`ClassPriors::admits_length`]), renormalised; where
     /// the best phrase is one of those (a table seen whole is no box, however box-like its
-    /// features), the object phrases that admit the length, renormalised. Structure ([`OTHER_PHRASE`]) takes no share that way: what the features call
-    /// an object stays one. As without a length when none is given, the features call it
-    /// structure, or the phrases that admit it hold less than [`MIN_ADMITTED_SHARE`].
+    /// features), the object phrases that admit the length, renormalised. Structure
+    /// ([`OTHER_PHRASE`]) takes no share that way: what the features call an object stays one.
+    /// As without a length when none is given, the features call it structure, or the phrases
+    /// that admit it hold less than [`MIN_ADMITTED_SHARE`].
     pub fn probabilities_given(&self, prototype: &[f32], length_m: Option<f64>) -> Vec<f32> {
         let p = self.probabilities(prototype);
         let Some(length) = length_m.filter(|l| l.is_finite()) else {
@@ -385,37 +398,20 @@ impl Vocabulary {
         let object = |i: usize| self.phrases[i] != OTHER_PHRASE;
         let admitted = |i: usize| object(i) && self.priors.admits_length(&self.phrases[i], length);
         let best = (0..p.len()).max_by(|&a, &b| p[a].total_cmp(&p[b]).then(b.cmp(&a)));
-        if best.is_none_or(|b| !object(b)) {
+        let Some(best) = best.filter(|&b| object(b)) else {
             return p;
-        }
-        if best.is_some_and(admitted) {
+        };
+        if admitted(best) {
             // The name stands; the object names that could not be this long lose their share,
             // so a query for one of them does not answer it (a 1.1 m table whose second name is
             // chair answered "all the chairs" where no chair was seen: benchmark 12810).
-            if (0..p.len()).all(|i| admitted(i) || !object(i)) {
-                return p;
-            }
-            let kept: f32 = (0..p.len())
-                .filter(|&i| admitted(i) || !object(i))
-                .map(|i| p[i])
-                .sum();
-            return (0..p.len())
-                .map(|i| {
-                    if admitted(i) || !object(i) {
-                        p[i] / kept
-                    } else {
-                        0.0
-                    }
-                })
-                .collect();
+            return renormalised(p, |i| admitted(i) || !object(i));
         }
         let kept: f32 = (0..p.len()).filter(|&i| admitted(i)).map(|i| p[i]).sum();
         if kept < MIN_ADMITTED_SHARE {
             return p;
         }
-        (0..p.len())
-            .map(|i| if admitted(i) { p[i] / kept } else { 0.0 })
-            .collect()
+        renormalised(p, admitted)
     }
 
     /// The `count` best phrases for `prototype`, best first, with their softmax scores. Empty when
