@@ -12,6 +12,10 @@ taking the views' intrinsics and poses as well.
 model whose training run is gone can be exported again with it from its own weights: `--model
 models/<name>.onnx` recovers them (gf.recover, checked by output parity) and keeps the training part
 of that model's provenance, so no --summary is needed.
+
+`--input-size 192x144` exports the same weights for a larger input (GroupForwardMini.set_input_size):
+the node resamples the camera's views to the manifest's size, so small objects keep more pixels, at
+about twice the model's time (train/README.md, "The RGB-D model at 192 x 144").
 """
 
 import argparse
@@ -189,10 +193,21 @@ def checkpoint_provenance(args, model, summary, guided):
         head += f'; {guided_note(*guided, after_training=after_training, points=model.mode == "rgbd")}'
     splits = list(dict.fromkeys(summary.get('train_splits') or ['train']))
     named = f"{' + '.join(splits)} split{'s' if len(splits) > 1 else ''}"
-    return (f"{origin} on groupforward-sim {named} ({summary['train_windows']} windows x 4 views, 128x96), "
+    trained_width, trained_height = summary.get('train_size', (128, 96))
+    return (f"{origin} on groupforward-sim {named} ({summary['train_windows']} windows x 4 views, "
+            f"{trained_width}x{trained_height}), "
             f"checkpoint of step {step} ({minutes:.0f} min) of a {summary['steps']}-step, "
             f"{summary['minutes']:.0f}-min run on {trained_on}, {picked}; {head}; "
             f"{losses}{'; pseudo instance labels' if train_args.get('pseudo_labels') else ''}")
+
+
+def input_size(text):
+    """`WIDTHxHEIGHT` as (width, height)."""
+    try:
+        width, height = (int(side) for side in text.lower().split('x'))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'{text!r}: expected WIDTHxHEIGHT, e.g. 192x144') from None
+    return width, height
 
 
 def main():
@@ -208,6 +223,9 @@ def main():
                         help='eval_recon.py output (JSON) on the val windows held out from checkpoint selection')
     parser.add_argument('--guided', metavar='SIGMA_POINTS,SIGMA_COLOUR', type=guided_widths,
                         help='upsample the instance head by joint bilateral upsampling (eval_recon.py --guided)')
+    parser.add_argument('--input-size', metavar='WIDTHxHEIGHT', type=input_size, default=(128, 96),
+                        help='the input the exported graph takes (multiples of 16 in the trained 4:3 aspect, '
+                             'e.g. 192x144; GroupForwardMini.set_input_size); the report must be scored at it')
     args = parser.parse_args()
     exported = args.model.endswith('.onnx')
     if exported == bool(args.summary):
@@ -215,7 +233,8 @@ def main():
     if exported:
         # Read before the export below may overwrite the same files.
         earlier = training_provenance(Path(args.model).with_suffix('.toml').read_text())
-    model = model_from_file(args.model, args.mode)
+    # A file exported with the upsampling is recovered with it (its widths are folded into constants).
+    model = model_from_file(args.model, args.mode, args.guided if exported else None)
     if args.room_bias:
         model.shift_room_logit(args.room_bias)
     if args.guided:
@@ -223,7 +242,9 @@ def main():
     # A checkpoint trained with the upsampling (train_recon.py --guided) carries it in its state dict.
     guided = tuple(model.instance_guide_sigmas.tolist()) if model.guided_upsampling else None
     model.eval()
-    height, width = 96, 128
+    width, height = args.input_size
+    if (height, width) != model.trained_size:
+        model.set_input_size(height, width)
     generator = torch.Generator().manual_seed(0)
     mode = 'rgb_posed' if model.posed else args.mode
     names = model.input_names()
@@ -249,8 +270,12 @@ def main():
         provenance = earlier
         if args.room_bias:
             provenance += f'; room logit shifted by a further {args.room_bias:+g} (chosen on the selection windows)'
-        if guided:
+        if guided and 'joint bilateral upsampling' not in provenance:
             provenance += f'; {guided_note(*guided, after_training=True, points=model.mode == "rgbd")}'
+        if (height, width) != model.trained_size:
+            trained_height, trained_width = model.trained_size
+            provenance += (f'; exported again at {width}x{height} from these weights (trained at '
+                           f'{trained_width}x{trained_height}; the token positions learned on its grid sampled in between)')
     else:
         provenance = checkpoint_provenance(args, model, json.loads(Path(args.summary).read_text()), guided)
     if rewrite and 'graph rewritten for the CPU runtime' not in provenance:

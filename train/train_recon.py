@@ -239,6 +239,16 @@ def main():
         model.load_state_dict(state)
     if args.guided:
         model.enable_guided_upsampling(*args.guided)
+    # Data rendered at another size than the trained 128 x 96 (`sim dataset --width 192 --height 144`):
+    # the token positions of the trained grid, sampled in between (export with the same --input-size).
+    def window_size(dataset):
+        return dataset.manifest.get('height', 96), dataset.manifest.get('width', 128)
+
+    size = window_size(train)
+    if window_size(val) != size:
+        raise SystemExit(f'train and val windows differ in size: {size} against the val split\'s')
+    if size != model.trained_size:
+        model.set_input_size(*size)
     device = torch.device(args.device)
     model.to(device)
     print(f'GroupForward-mini ({args.mode}): {parameter_count(model) / 1e6:.2f} M parameters; '
@@ -398,7 +408,7 @@ def main():
     summary = {'mode': args.mode, 'rendered_losses': not args.no_rendered, 'steps': step,
                'minutes': (time.perf_counter() - started) / 60,
                'threads': args.threads, 'device': args.device, 'cpu': cpu_name(), 'seed': args.seed,
-               'sessions': sessions, 'train_windows': len(train),
+               'sessions': sessions, 'train_windows': len(train), 'train_size': [size[1], size[0]],
                'train_splits': splits,
                'val_windows': args.val_windows,
                'best': best, 'final': metrics, 'parameters': parameter_count(model),

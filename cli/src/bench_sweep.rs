@@ -39,6 +39,8 @@ pub struct Setting {
 
 const RGBD: &str = "groupforward-mini-rgbd.toml";
 const RGB: &str = "groupforward-mini-rgb.toml";
+/// The default's weights taking 192 × 144 instead of the 128 × 96 they were trained at.
+const RGBD_192X144: &str = "groupforward-mini-rgbd-192x144.toml";
 
 impl Setting {
     fn default_setting() -> Self {
@@ -106,6 +108,7 @@ pub fn settings(quick: bool) -> Vec<Setting> {
         // The default before HDBSCAN ran on a grid of the embeddings (2026-11-29).
         Setting::with("exact_hdbscan", |s| s.resolution = 0.0),
         Setting::with("rgb_model", |s| s.model = RGB),
+        Setting::with("model_192x144", |s| s.model = RGBD_192X144),
         // The shipped default before its speed work (2026-11-25), side by side with it.
         Setting::with("ort_spinning", |s| s.spinning = true),
         Setting::with("features_in_window", |s| s.features_ahead = false),

@@ -200,12 +200,16 @@ class CrossViewAttention(nn.Module):
         return x + self.mlp(self.norm2(x))
 
 
-def positional_encoding(height, width, dim):
-    """2D sinusoidal encoding [dim, height, width]: half the channels for rows, half for columns."""
+def positional_encoding(height, width, dim, span=None):
+    """2D sinusoidal encoding [dim, height, width]: half the channels for rows, half for columns.
+    `span` (rows, columns): the grid the encoding was trained on, which a finer grid samples in
+    between (a model exported at a larger input keeps the positions it learned; None: the grid
+    itself)."""
+    span_rows, span_columns = span or (height, width)
     quarter = dim // 4
     frequencies = torch.exp(torch.arange(quarter) * (-math.log(100.0) / quarter))
-    ys = torch.arange(height).float()[:, None] * frequencies[None]
-    xs = torch.arange(width).float()[:, None] * frequencies[None]
+    ys = (torch.arange(height).float() * (span_rows / height))[:, None] * frequencies[None]
+    xs = (torch.arange(width).float() * (span_columns / width))[:, None] * frequencies[None]
     rows = torch.cat([ys.sin(), ys.cos()], dim=1).T[:, :, None].expand(-1, -1, width)
     cols = torch.cat([xs.sin(), xs.cos()], dim=1).T[:, None, :].expand(-1, height, -1)
     return torch.cat([rows, cols], dim=0)
@@ -235,6 +239,7 @@ class GroupForwardMini(nn.Module):
         self.enc2 = block(c[0], c[1], stride=2)
         self.enc3 = block(c[1], c[2], stride=2)
         self.enc4 = block(c[2], c[3], stride=2)
+        self.trained_size = (height, width)
         self.register_buffer('position', positional_encoding(height // 16, width // 16, c[3]), persistent=False)
         self.attention = nn.ModuleList([CrossViewAttention(c[3]) for _ in range(2)])
         self.dec3 = block(c[3] + c[2], c[2])
@@ -284,6 +289,19 @@ class GroupForwardMini(nn.Module):
             nn.init.zeros_(self.instance_room_refine[2].bias)
         if guided_upsampling is not None:
             self.enable_guided_upsampling(*guided_upsampling)
+
+    def set_input_size(self, height, width):
+        """Take `height` × `width` inputs from now on (both multiples of 16, the trained aspect):
+        the convolutions are size-free, and the views' tokens sample the positions learned on the
+        trained grid in between, so a finer input keeps them. Small objects cover more pixels at a
+        larger input (the camera's 320 × 240 resampled to 128 × 96 leaves a lamp a few)."""
+        trained_height, trained_width = self.trained_size
+        if height % 16 or width % 16:
+            raise ValueError(f'{width} x {height}: both sides must be multiples of 16')
+        if height * trained_width != width * trained_height:
+            raise ValueError(f'{width} x {height}: not the trained {trained_width} x {trained_height} aspect')
+        span = (trained_height // 16, trained_width // 16)
+        self.position = positional_encoding(height // 16, width // 16, self.position.shape[0], span).to(self.position)
 
     def enable_guided_upsampling(self, sigma_points, sigma_colour):
         """Upsample the instance head by joint bilateral upsampling from now on (range kernels σ_points
