@@ -243,8 +243,7 @@ def main():
     guided = tuple(model.instance_guide_sigmas.tolist()) if model.guided_upsampling else None
     model.eval()
     width, height = args.input_size
-    if (height, width) != model.trained_size:
-        model.set_input_size(height, width)
+    model.set_input_size(height, width)
     generator = torch.Generator().manual_seed(0)
     mode = 'rgb_posed' if model.posed else args.mode
     names = model.input_names()

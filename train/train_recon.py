@@ -241,14 +241,10 @@ def main():
         model.enable_guided_upsampling(*args.guided)
     # Data rendered at another size than the trained 128 x 96 (`sim dataset --width 192 --height 144`):
     # the token positions of the trained grid, sampled in between (export with the same --input-size).
-    def window_size(dataset):
-        return dataset.manifest.get('height', 96), dataset.manifest.get('width', 128)
-
-    size = window_size(train)
-    if window_size(val) != size:
-        raise SystemExit(f'train and val windows differ in size: {size} against the val split\'s')
-    if size != model.trained_size:
-        model.set_input_size(*size)
+    size = train.window_size
+    if val.window_size != size:
+        raise SystemExit(f'train and val windows differ in size: {size} against {val.window_size}')
+    model.set_input_size(*size)
     device = torch.device(args.device)
     model.to(device)
     print(f'GroupForward-mini ({args.mode}): {parameter_count(model) / 1e6:.2f} M parameters; '

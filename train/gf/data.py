@@ -48,6 +48,12 @@ class SimDataset(torch.utils.data.Dataset):
     def __len__(self):
         return len(self.scenes)
 
+    @property
+    def window_size(self):
+        """(height, width) of the views (`sim dataset --width --height`; 128 x 96 where the manifest
+        predates the field)."""
+        return self.manifest.get('height', 96), self.manifest.get('width', 128)
+
     def objects(self, index):
         """The scene's objects (instance id, class, colour, world bounds) from its cameras.json."""
         return json.loads((self.root / self.scenes[index] / 'cameras.json').read_text())['objects']

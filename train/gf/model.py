@@ -294,7 +294,8 @@ class GroupForwardMini(nn.Module):
         """Take `height` × `width` inputs from now on (both multiples of 16, the trained aspect):
         the convolutions are size-free, and the views' tokens sample the positions learned on the
         trained grid in between, so a finer input keeps them. Small objects cover more pixels at a
-        larger input (the camera's 320 × 240 resampled to 128 × 96 leaves a lamp a few)."""
+        larger input (the camera's 320 × 240 resampled to 128 × 96 leaves a lamp a few). At the
+        trained size the positions are the trained ones."""
         trained_height, trained_width = self.trained_size
         if height % 16 or width % 16:
             raise ValueError(f'{width} x {height}: both sides must be multiples of 16')
