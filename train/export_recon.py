@@ -274,7 +274,8 @@ def main():
         if (height, width) != model.trained_size:
             trained_height, trained_width = model.trained_size
             provenance += (f'; exported again at {width}x{height} from these weights (trained at '
-                           f'{trained_width}x{trained_height}; the token positions learned on its grid sampled in between)')
+                           f'{trained_width}x{trained_height}; the token positions learned on its grid '
+                           'sampled in between)')
     else:
         provenance = checkpoint_provenance(args, model, json.loads(Path(args.summary).read_text()), guided)
     if rewrite and 'graph rewritten for the CPU runtime' not in provenance:
