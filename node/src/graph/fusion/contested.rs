@@ -23,7 +23,7 @@ use rustc_hash::FxHashMap;
 
 use super::associate::Association;
 use super::folds::{names_an_object, FRAGMENT_SIDE_MARGIN};
-use super::shapes::{alike, two_whole_objects};
+use super::shapes::{boxes_alike, fitted, two_whole_boxes, WholeSizes};
 use super::{Kinds, SceneMap};
 use crate::frame::WindowInstance;
 use crate::recon::boxes::{OrientedBox, DEFAULT_TRIM};
@@ -43,6 +43,14 @@ const NEAR_CELL_M: f32 = 0.1;
 /// Farther from every owner, a point goes to the nearest of at most this many points of each (an
 /// even stride): far points (a part of the instance this window did not see) need no precision.
 const OWNER_SAMPLE: usize = 256;
+
+/// Two sightings of one window ([`SceneMap::seen_as_two`]), by their indices in it.
+#[derive(Clone, Copy)]
+struct Sightings<'w> {
+    window: &'w [WindowInstance],
+    a: usize,
+    b: usize,
+}
 
 /// For each of `points`, the index of the owner holding its nearest point (owners without points
 /// are never nearest; with no owner at all, 0). Exact within [`NEAR_CELL_M`] (a hash grid of every
@@ -119,6 +127,9 @@ impl SceneMap {
         kinds: &dyn Kinds,
     ) -> Vec<(usize, usize)> {
         let mut splits = Vec::new();
+        // Each sighting's box, fitted once: an instance with many sightings on it compares every
+        // pair (one window's fusion took 56 ms refitting them, benchmark 13200-13219).
+        let mut boxes: Vec<Option<OrientedBox>> = vec![None; window.len()];
         for part in 0..window.len() {
             let Some(j) = association.pairs[part].filter(|_| association.from_parts[part]) else {
                 continue;
@@ -131,7 +142,12 @@ impl SceneMap {
             others.sort_by_key(|&k| association.from_parts[k]);
             let Some(kept) = others.into_iter().find(|&k| {
                 let both_parts = association.from_parts[k];
-                self.seen_as_two(j, &window[k], &window[part], both_parts, kinds)
+                let sightings = Sightings {
+                    window,
+                    a: k,
+                    b: part,
+                };
+                self.seen_as_two(j, sightings, &mut boxes, both_parts, kinds)
             }) else {
                 continue;
             };
@@ -145,6 +161,7 @@ impl SceneMap {
             let w = &mut window[leaving].gaussians;
             if (given.embedding_dim, given.extra_dim) == (w.embedding_dim, w.extra_dim) {
                 w.extend(&given);
+                boxes[leaving] = None;
             }
             association.pairs[leaving] = None;
             tracing::debug!(
@@ -164,19 +181,31 @@ impl SceneMap {
     /// times its largest side (not for two parts: pieces of a sofa or a table's edge, on benchmark
     /// 11804 and 11811), or once that where each is as long as one ([`two_whole_objects`]; two
     /// halves of one bed are alike too; a name without that prior is never split).
+    /// `boxes` keeps each sighting's [`fitted`] box (by its index in the window) once fitted.
     fn seen_as_two(
         &self,
         j: usize,
-        a: &WindowInstance,
-        b: &WindowInstance,
+        sightings: Sightings<'_>,
+        boxes: &mut [Option<OrientedBox>],
         both_parts: bool,
         kinds: &dyn Kinds,
     ) -> bool {
+        let (a, b) = (
+            &sightings.window[sightings.a],
+            &sightings.window[sightings.b],
+        );
         let same_kind = |x: &[f32], y: &[f32]| kinds.same_kind(x, y);
         let named_alike = names_an_object(&same_kind, &a.prototype)
             && names_an_object(&same_kind, &b.prototype)
             && same_kind(&a.prototype, &b.prototype);
-        if !named_alike || !alike(&a.gaussians.means, &b.gaussians.means) {
+        if !named_alike {
+            return false;
+        }
+        let mut box_of = |k: usize| {
+            *boxes[k].get_or_insert_with(|| fitted(&sightings.window[k].gaussians.means))
+        };
+        let (box_a, box_b) = (box_of(sightings.a), box_of(sightings.b));
+        if !boxes_alike(&box_a, &box_b) {
             return false;
         }
         let Some(side) = kinds.largest_side(&a.prototype) else {
@@ -191,14 +220,12 @@ impl SceneMap {
             .copied()
             .collect();
         let length = OrientedBox::principal_length(&spanned, DEFAULT_TRIM);
-        (length > SPLIT_SIDE_MARGIN * side && !both_parts)
-            || two_whole_objects(
-                &a.gaussians.means,
-                &b.gaussians.means,
-                length,
-                kinds.typical_length(&a.prototype),
-                side,
-            )
+        let sizes = WholeSizes {
+            length,
+            typical_length: kinds.typical_length(&a.prototype),
+            largest_side: side,
+        };
+        (length > SPLIT_SIDE_MARGIN * side && !both_parts) || two_whole_boxes(&box_a, &box_b, sizes)
     }
 
     /// Divide instance `j`'s points between sightings `a` and `b` by the nearer one's points. The

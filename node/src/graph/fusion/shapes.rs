@@ -28,8 +28,20 @@ const WHOLE_SHARE: f64 = 0.7;
 const SIDE_BY_SIDE_IOU: f64 = 0.1;
 /// Whether two point sets are of about one size ([`ALIKE_SIDE_RATIO`]).
 pub(super) fn alike(a: &[Vec3], b: &[Vec3]) -> bool {
-    let sides = |points: &[Vec3]| {
-        let size = fit_object_box(points, DEFAULT_TRIM).size;
+    boxes_alike(&fitted(a), &fitted(b))
+}
+
+/// The box the shape rules compare a point set by. A fit is most of their cost: a caller that
+/// compares one point set with several keeps its box ([`boxes_alike`], [`two_whole_boxes`]).
+pub(super) fn fitted(points: &[Vec3]) -> OrientedBox {
+    fit_object_box(points, DEFAULT_TRIM)
+}
+
+/// [`alike`] of the point sets with these [`fitted`] boxes: each side (longer and shorter
+/// horizontal, height), at least [`ALIKE_MIN_SIDE_M`], within [`ALIKE_SIDE_RATIO`] of the other's.
+pub(super) fn boxes_alike(a: &OrientedBox, b: &OrientedBox) -> bool {
+    let sides = |fitted: &OrientedBox| {
+        let size = fitted.size;
         [size.x.max(size.y), size.x.min(size.y), size.z].map(|s| s.max(ALIKE_MIN_SIDE_M))
     };
     let (sa, sb) = (sides(a), sides(b));
@@ -51,20 +63,44 @@ pub(super) fn two_whole_objects(
     typical_length: Option<f64>,
     largest_side: f64,
 ) -> bool {
-    let Some(typical) = typical_length.filter(|t| t.is_finite() && *t > 0.0) else {
+    let sizes = WholeSizes {
+        length,
+        typical_length,
+        largest_side,
+    };
+    sizes.known() && two_whole_boxes(&fitted(a), &fitted(b), sizes)
+}
+
+/// What [`two_whole_objects`] knows of a pair and its name besides their boxes.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct WholeSizes {
+    /// The pair's length together (m).
+    pub(super) length: f64,
+    /// The name's typical length (m), if the vocabulary has one.
+    pub(super) typical_length: Option<f64>,
+    /// The name's largest side (m).
+    pub(super) largest_side: f64,
+}
+
+impl WholeSizes {
+    /// A typical length to compare with, and together longer than the largest side.
+    fn known(&self) -> bool {
+        self.typical_length
+            .is_some_and(|t| t.is_finite() && t > 0.0)
+            && self.length.is_finite()
+            && self.length > self.largest_side
+    }
+}
+
+/// [`two_whole_objects`] of the point sets with these [`fitted`] boxes.
+pub(super) fn two_whole_boxes(box_a: &OrientedBox, box_b: &OrientedBox, sizes: WholeSizes) -> bool {
+    let Some(typical) = sizes.typical_length.filter(|_| sizes.known()) else {
         return false;
     };
-    if !(length.is_finite() && length > largest_side) {
-        return false;
-    }
-    let (box_a, box_b) = (
-        fit_object_box(a, DEFAULT_TRIM),
-        fit_object_box(b, DEFAULT_TRIM),
-    );
     let whole = |fitted: &OrientedBox| {
         fitted.size.is_finite() && fitted.size.x.max(fitted.size.y) >= WHOLE_SHARE * typical
     };
-    whole(&box_a) && whole(&box_b) && box_a.iou(&box_b) <= SIDE_BY_SIDE_IOU
+    whole(box_a) && whole(box_b) && box_a.iou(box_b) <= SIDE_BY_SIDE_IOU
 }
 
 #[cfg(test)]

@@ -340,3 +340,20 @@ pub(in crate::graph::fusion) fn block(lo: Vec3, hi: Vec3) -> Gaussians {
         on_face.contains(&true).then(|| lo + (hi - lo) * t)
     }))
 }
+
+#[test]
+fn a_footprint_queried_again_answers_as_a_fresh_one_at_every_radius() {
+    // Two interleaved rows, each point 5 cm from the other row's nearest: covered at a radius of
+    // 6 cm, not at 4 cm. The grid kept from one query must not answer the next at another radius.
+    let row =
+        |x0: f32| gaussians_at((0..40).map(move |k| Vec3::new(x0 + k as f32 * 0.1, 0.0, 0.0)));
+    let (a, b) = (row(0.0), row(0.05));
+    let fresh =
+        |radius: f32| Footprint::new(&a, 0.01).covered_by(&Footprint::new(&b, 0.01), radius);
+    assert_eq!(fresh(0.06), 1.0);
+    assert_eq!(fresh(0.04), 0.0);
+    let (fa, fb) = (Footprint::new(&a, 0.01), Footprint::new(&b, 0.01));
+    for radius in [0.06, 0.06, 0.04, 0.06, 0.04, 0.04] {
+        assert_eq!(fa.covered_by(&fb, radius), fresh(radius), "radius {radius}");
+    }
+}
