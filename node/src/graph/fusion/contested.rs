@@ -23,7 +23,7 @@ use rustc_hash::FxHashMap;
 
 use super::associate::Association;
 use super::folds::{names_an_object, FRAGMENT_SIDE_MARGIN};
-use super::shapes::{boxes_alike, fitted, two_whole_boxes, WholeSizes};
+use super::shapes::{boxes_alike, fitted, two_whole_boxes};
 use super::{Kinds, SceneMap};
 use crate::frame::WindowInstance;
 use crate::recon::boxes::{OrientedBox, DEFAULT_TRIM};
@@ -179,7 +179,7 @@ impl SceneMap {
     /// `both_parts`) are two objects: both objects, named alike, of about one size ([`alike`]),
     /// and together with `j` longer than one object of their name could be: [`SPLIT_SIDE_MARGIN`]
     /// times its largest side (not for two parts: pieces of a sofa or a table's edge, on benchmark
-    /// 11804 and 11811), or once that where each is as long as one ([`two_whole_objects`]; two
+    /// 11804 and 11811), or once that where each is as long as one ([`two_whole_boxes`]; two
     /// halves of one bed are alike too; a name without that prior is never split).
     /// `boxes` keeps each sighting's [`fitted`] box (by its index in the window) once fitted.
     fn seen_as_two(
@@ -220,12 +220,14 @@ impl SceneMap {
             .copied()
             .collect();
         let length = OrientedBox::principal_length(&spanned, DEFAULT_TRIM);
-        let sizes = WholeSizes {
-            length,
-            typical_length: kinds.typical_length(&a.prototype),
-            largest_side: side,
-        };
-        (length > SPLIT_SIDE_MARGIN * side && !both_parts) || two_whole_boxes(&box_a, &box_b, sizes)
+        (length > SPLIT_SIDE_MARGIN * side && !both_parts)
+            || two_whole_boxes(
+                &box_a,
+                &box_b,
+                length,
+                kinds.typical_length(&a.prototype),
+                side,
+            )
     }
 
     /// Divide instance `j`'s points between sightings `a` and `b` by the nearer one's points. The

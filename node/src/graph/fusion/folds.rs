@@ -6,7 +6,7 @@
 use glam::Vec3;
 
 use super::footprint::Footprints;
-use super::shapes::{alike, two_whole_objects};
+use super::shapes::{boxes_alike, fitted, two_whole_boxes};
 use super::{Kinds, SceneMap};
 use crate::graph::instance::{bounds, cosine, Instance};
 use crate::recon::boxes::DEFAULT_TRIM;
@@ -167,7 +167,7 @@ impl SceneMap {
     /// and headboard becomes one bed again; two chairs that touch stay two unless their
     /// prototypes and names agree, and a chair against a table never folds into it. Two a window
     /// saw apart ([`SceneMap::seen_apart`]) that are each as long as one object of their name and
-    /// stand side by side ([`super::shapes::two_whole_objects`]: two bookshelves of a row) are
+    /// stand side by side ([`super::shapes::two_whole_boxes`]: two bookshelves of a row) are
     /// two objects, not fragments. A leg under a
     /// surface ([`is_leg_of`]) folds whatever it is named, both being objects (`same_kind` of a
     /// prototype with itself: not structure). Returns (absorbed, survivor) id pairs.
@@ -218,9 +218,17 @@ impl SceneMap {
                     let length = union.size.x.max(union.size.y);
                     // Seen apart, each as long as one: two objects of a row, not fragments.
                     length <= FRAGMENT_SIDE_MARGIN * side
-                        && !(seen_apart
-                            && alike(ma, mb)
-                            && two_whole_objects(ma, mb, length, kinds.typical_length(pa), side))
+                        && !(seen_apart && {
+                            let (box_a, box_b) = (fitted(ma), fitted(mb));
+                            boxes_alike(&box_a, &box_b)
+                                && two_whole_boxes(
+                                    &box_a,
+                                    &box_b,
+                                    length,
+                                    kinds.typical_length(pa),
+                                    side,
+                                )
+                        })
                 });
             if fragments {
                 tracing::debug!(a = %instances[a].id, b = %instances[b].id, "fold rule: fragments");

@@ -26,19 +26,15 @@ const WHOLE_SHARE: f64 = 0.7;
 /// (benchmark 7010 and 8002: a chair split into two without it). A choice, not fitted; checked
 /// with [`WHOLE_SHARE`] on the ranges it names.
 const SIDE_BY_SIDE_IOU: f64 = 0.1;
-/// Whether two point sets are of about one size ([`ALIKE_SIDE_RATIO`]).
-pub(super) fn alike(a: &[Vec3], b: &[Vec3]) -> bool {
-    boxes_alike(&fitted(a), &fitted(b))
-}
-
-/// The box the shape rules compare a point set by. A fit is most of their cost: a caller that
-/// compares one point set with several keeps its box ([`boxes_alike`], [`two_whole_boxes`]).
+/// The box the shape rules compare a point set by. A fit is most of their cost: a caller fits
+/// each point set once and compares the boxes ([`boxes_alike`], [`two_whole_boxes`]).
 pub(super) fn fitted(points: &[Vec3]) -> OrientedBox {
     fit_object_box(points, DEFAULT_TRIM)
 }
 
-/// [`alike`] of the point sets with these [`fitted`] boxes: each side (longer and shorter
-/// horizontal, height), at least [`ALIKE_MIN_SIDE_M`], within [`ALIKE_SIDE_RATIO`] of the other's.
+/// Whether the point sets with these [`fitted`] boxes are of about one size: each side (longer
+/// and shorter horizontal, height), at least [`ALIKE_MIN_SIDE_M`], within [`ALIKE_SIDE_RATIO`] of
+/// the other's.
 pub(super) fn boxes_alike(a: &OrientedBox, b: &OrientedBox) -> bool {
     let sides = |fitted: &OrientedBox| {
         let size = fitted.size;
@@ -50,53 +46,25 @@ pub(super) fn boxes_alike(a: &OrientedBox, b: &OrientedBox) -> bool {
         .all(|(x, y)| x.is_finite() && y.is_finite() && x.max(*y) <= ALIKE_SIDE_RATIO * x.min(*y))
 }
 
-/// Whether point sets `a` and `b`, alike and together `length` long (m), are two whole objects
-/// of a name whose objects are typically `typical_length` long and at most `largest_side`: each
-/// as long as one ([`WHOLE_SHARE`]), side by side ([`SIDE_BY_SIDE_IOU`]) and together longer than
-/// any one. Two bookshelves of a row, 0.8 m each, are (together 1.6 m, under the
-/// split's 1.5 × 1.03 m bound (`contested::SPLIT_SIDE_MARGIN`) that two halves of one bed need); halves of one bed,
-/// each half its length, are not.
-pub(super) fn two_whole_objects(
-    a: &[Vec3],
-    b: &[Vec3],
+/// Whether the point sets with these [`fitted`] boxes, alike and together `length` long (m), are
+/// two whole objects of a name whose objects are typically `typical_length` long and at most
+/// `largest_side`: each as long as one ([`WHOLE_SHARE`]), side by side ([`SIDE_BY_SIDE_IOU`]) and
+/// together longer than any one. Two bookshelves of a row, 0.8 m each, are (together 1.6 m,
+/// under the split's 1.5 × 1.03 m bound (`contested::SPLIT_SIDE_MARGIN`) that two halves of one
+/// bed need); halves of one bed, each half its length, are not.
+pub(super) fn two_whole_boxes(
+    box_a: &OrientedBox,
+    box_b: &OrientedBox,
     length: f64,
     typical_length: Option<f64>,
     largest_side: f64,
 ) -> bool {
-    let sizes = WholeSizes {
-        length,
-        typical_length,
-        largest_side,
-    };
-    sizes.known() && two_whole_boxes(&fitted(a), &fitted(b), sizes)
-}
-
-/// What [`two_whole_objects`] knows of a pair and its name besides their boxes.
-#[derive(Debug, Clone, Copy)]
-pub(super) struct WholeSizes {
-    /// The pair's length together (m).
-    pub(super) length: f64,
-    /// The name's typical length (m), if the vocabulary has one.
-    pub(super) typical_length: Option<f64>,
-    /// The name's largest side (m).
-    pub(super) largest_side: f64,
-}
-
-impl WholeSizes {
-    /// A typical length to compare with, and together longer than the largest side.
-    fn known(&self) -> bool {
-        self.typical_length
-            .is_some_and(|t| t.is_finite() && t > 0.0)
-            && self.length.is_finite()
-            && self.length > self.largest_side
-    }
-}
-
-/// [`two_whole_objects`] of the point sets with these [`fitted`] boxes.
-pub(super) fn two_whole_boxes(box_a: &OrientedBox, box_b: &OrientedBox, sizes: WholeSizes) -> bool {
-    let Some(typical) = sizes.typical_length.filter(|_| sizes.known()) else {
+    let Some(typical) = typical_length.filter(|t| t.is_finite() && *t > 0.0) else {
         return false;
     };
+    if !(length.is_finite() && length > largest_side) {
+        return false;
+    }
     let whole = |fitted: &OrientedBox| {
         fitted.size.is_finite() && fitted.size.x.max(fitted.size.y) >= WHOLE_SHARE * typical
     };
@@ -107,6 +75,20 @@ pub(super) fn two_whole_boxes(box_a: &OrientedBox, box_b: &OrientedBox, sizes: W
 mod tests {
     use super::super::tests::block;
     use super::*;
+
+    fn alike(a: &[Vec3], b: &[Vec3]) -> bool {
+        boxes_alike(&fitted(a), &fitted(b))
+    }
+
+    fn two_whole_objects(
+        a: &[Vec3],
+        b: &[Vec3],
+        length: f64,
+        typical_length: Option<f64>,
+        largest_side: f64,
+    ) -> bool {
+        two_whole_boxes(&fitted(a), &fitted(b), length, typical_length, largest_side)
+    }
 
     /// Two cabinets of a row, touching at x = 1.
     fn cabinets() -> (
