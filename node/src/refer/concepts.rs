@@ -104,6 +104,34 @@ impl Concept {
             .clamp(0.0, 1.0)
     }
 
+    /// How plausible it is that `node` is what this concept names, against its own best name: the
+    /// largest p(phrase | node) / max p(· | node) over the phrases the concept stands for (those
+    /// with at least half its largest weight), in [0, 1]. A toilet whose names hold a trace of sink
+    /// scores that trace's share for "sink"; a refrigerator the map calls cabinet a little more
+    /// surely keeps most of its share for "fridge". `phrases`: the scene's, to leave `other` out of
+    /// the best name. 0 for an instance without object names.
+    pub fn name_share(&self, node: &ReferNode, phrases: &[String]) -> f32 {
+        let best_name = node
+            .names
+            .iter()
+            .zip(phrases)
+            .filter(|(_, p)| p.as_str() != OTHER_PHRASE)
+            .map(|(v, _)| *v)
+            .fold(0.0, f32::max);
+        let top_weight = self.weights.iter().copied().fold(0.0, f32::max);
+        // f32::max folds past NaN, so both are finite here.
+        if best_name <= 0.0 || top_weight <= 0.0 {
+            return 0.0;
+        }
+        node.names
+            .iter()
+            .zip(&self.weights)
+            .filter(|(_, w)| **w >= 0.5 * top_weight)
+            .map(|(p, _)| p / best_name)
+            .fold(0.0, f32::max)
+            .clamp(0.0, 1.0)
+    }
+
     /// The phrase of the vocabulary this concept leans on most, with its weight.
     pub fn nearest_phrase<'a>(&self, scene: &'a ReferScene) -> Option<(&'a str, f32)> {
         self.weights
@@ -144,9 +172,22 @@ mod tests {
         let scene = scene();
         let nothing = Concept::new("", &[0.0, 0.0, 0.0], &scene, 0.05);
         assert!(nothing.weights.iter().all(|w| w.is_finite()));
-        let unnamed = ReferNode {
+        let unnamed = named(Vec::new());
+        assert_eq!(nothing.score(&unnamed), 0.0);
+        // A vocabulary of only `other`: no weight anywhere, finite.
+        let only_other = ReferScene {
+            phrases: vec!["other".into()],
+            embeddings: vec![vec![1.0]],
+            ..ReferScene::default()
+        };
+        let c = Concept::new("wall", &[1.0], &only_other, 1e-9);
+        assert_eq!(c.weights, [0.0]);
+    }
+
+    fn named(names: Vec<f32>) -> ReferNode {
+        ReferNode {
             id: "inst_000001".into(),
-            names: Vec::new(),
+            names,
             label: String::new(),
             bbox: crate::recon::boxes::OrientedBox::from_bounds(
                 glam::DVec3::ZERO,
@@ -159,16 +200,46 @@ mod tests {
             confidence: 0.5,
             gaussians: 0,
             tentative: false,
-        };
-        assert_eq!(nothing.score(&unnamed), 0.0);
-        // A vocabulary of only `other`: no weight anywhere, finite.
-        let only_other = ReferScene {
-            phrases: vec!["other".into()],
-            embeddings: vec![vec![1.0]],
-            ..ReferScene::default()
-        };
-        let c = Concept::new("wall", &[1.0], &only_other, 1e-9);
-        assert_eq!(c.weights, [0.0]);
+        }
+    }
+
+    #[test]
+    fn a_trace_of_a_name_is_a_small_share_and_a_close_second_name_a_large_one() {
+        let scene = scene();
+        let sofa = Concept::new("sofa", &[0.0, 1.0, 0.0], &scene, 0.05);
+        // A chair with a trace of sofa, most of the rest structure: the trace against the chair.
+        let chair = named(vec![0.6, 0.06, 0.34]);
+        let share = sofa.name_share(&chair, &scene.phrases);
+        assert!((share - 0.1).abs() < 1e-3, "{share}");
+        // Named chair a little more surely than sofa: sofa keeps most of its share.
+        let unsure = named(vec![0.45, 0.4, 0.15]);
+        assert!(sofa.name_share(&unsure, &scene.phrases) > 0.85);
+        // `other` is never the best name: an instance mostly structure, sofa its best object name.
+        let mostly_structure = named(vec![0.05, 0.2, 0.75]);
+        assert_eq!(sofa.name_share(&mostly_structure, &scene.phrases), 1.0);
+    }
+
+    #[test]
+    fn a_concept_over_two_phrases_fits_a_sure_instance_of_either() {
+        let scene = scene();
+        // "something to sit on", halfway between chair and sofa: a sure chair fits it fully.
+        let sit = Concept::new("sit", &[1.0, 1.0, 0.0], &scene, 0.05);
+        let chair = named(vec![0.95, 0.01, 0.04]);
+        assert_eq!(sit.name_share(&chair, &scene.phrases), 1.0);
+    }
+
+    #[test]
+    fn name_shares_of_unnamed_instances_and_empty_concepts_are_zero_not_nan() {
+        let scene = scene();
+        let sofa = Concept::new("sofa", &[0.0, 1.0, 0.0], &scene, 0.05);
+        assert_eq!(sofa.name_share(&named(Vec::new()), &scene.phrases), 0.0);
+        assert_eq!(
+            sofa.name_share(&named(vec![0.0, 0.0, 1.0]), &scene.phrases),
+            0.0
+        );
+        let nothing = Concept::new("", &[0.0, 0.0, 0.0], &scene, 1e-9);
+        let share = nothing.name_share(&named(vec![0.5, 0.5, 0.0]), &scene.phrases);
+        assert!(share.is_finite() && (0.0..=1.0).contains(&share), "{share}");
     }
 
     #[test]

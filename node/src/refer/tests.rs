@@ -367,6 +367,31 @@ fn a_target_the_map_does_not_hold_is_refused_saying_what_was_not_seen() {
 }
 
 #[test]
+fn a_trace_of_a_name_does_not_answer_for_an_object_never_seen_but_a_close_second_name_does() {
+    let mut scene = room();
+    scene.nodes.retain(|n| n.label != "lamp");
+    let lamp = PHRASES.iter().position(|p| *p == "lamp").unwrap();
+    // Table 1 surely a table, with a trace of lamp well above the semantic floor.
+    scene.nodes[0].names[lamp] = 0.15;
+    let got = ask(&scene, "the lamp");
+    assert!(
+        matches!(&got, Err(ReferError::Reason(ReasonError::NoTarget(_)))),
+        "{got:?}"
+    );
+    // The box on table 2 named box a little more surely than lamp: it may well be the lamp.
+    let on_table_2 = scene
+        .nodes
+        .iter()
+        .position(|n| n.id == "inst_000004")
+        .unwrap();
+    let named_box = PHRASES.iter().position(|p| *p == "box").unwrap();
+    scene.nodes[on_table_2].names[named_box] = 0.5;
+    scene.nodes[on_table_2].names[lamp] = 0.4;
+    let got = ask(&scene, "the lamp").expect("the box named nearly as surely lamp");
+    assert_eq!(ids(&got, &scene), ["inst_000004"]);
+}
+
+#[test]
 fn a_tentative_candidate_answers_only_where_no_listed_instance_fits_and_says_so() {
     // The lamp on table 1 was grouped and named by one window only: tentative.
     let mut scene = room();
