@@ -45,21 +45,12 @@ pub enum ReasonError {
     NoView(String),
 }
 
-/// A candidate under half the best semantic score still fits where the concept holds at least
-/// this share of its own best name ([`Scored::share`]): a chair the map names bookshelf a little
-/// more surely than chair is still one of "both chairs". Read on benchmark 13200-13219 and
-/// 13400-13419 (0.5 / 0.7: +15 / -5 and +12 / -5 expressions against none).
-pub const SECOND_NAME_SHARE: f32 = 0.5;
-
-/// The candidates that fit the target concept: at least half the best semantic score, or a name
-/// nearly as sure as the candidate's own best ([`SECOND_NAME_SHARE`]).
+/// The candidates that fit the target concept: at least half the best semantic score.
 pub fn fitting(candidates: &[Scored]) -> Vec<Scored> {
     let best = candidates.iter().map(|c| c.semantic).fold(0.0, f32::max);
     candidates
         .iter()
-        .filter(|c| {
-            c.semantic >= MIN_SEMANTIC && (c.semantic >= 0.5 * best || c.share >= SECOND_NAME_SHARE)
-        })
+        .filter(|c| c.semantic >= MIN_SEMANTIC && c.semantic >= 0.5 * best)
         .copied()
         .collect()
 }

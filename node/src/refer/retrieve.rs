@@ -38,8 +38,6 @@ pub struct Scored {
     /// Index into the scene's nodes.
     pub index: usize,
     pub semantic: f32,
-    /// The concept's share of the instance's own best name ([`Concept::name_share`]).
-    pub share: f32,
     pub geometric: f32,
     pub visibility: f32,
     /// semantic × (0.3 + 0.7 geometric) × (0.8 + 0.2 visibility): the concept gates, the
@@ -281,7 +279,6 @@ pub fn retrieve(
             Scored {
                 index: i,
                 semantic,
-                share: target.name_share(node, &scene.phrases),
                 geometric,
                 visibility,
                 score: semantic * (0.3 + 0.7 * geometric) * (0.8 + 0.2 * visibility),
