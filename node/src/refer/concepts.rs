@@ -222,10 +222,14 @@ mod tests {
     #[test]
     fn a_concept_over_two_phrases_fits_a_sure_instance_of_either() {
         let scene = scene();
-        // "something to sit on", halfway between chair and sofa: a sure chair fits it fully.
-        let sit = Concept::new("sit", &[1.0, 1.0, 0.0], &scene, 0.05);
+        // "something to sit on", between chair and sofa and leaning to chair: a sure chair and a
+        // sure sofa both fit it fully, not only the phrase it leans on most.
+        let sit = Concept::new("sit", &[1.0, 0.98, 0.0], &scene, 0.05);
+        assert!(sit.weights[0] > sit.weights[1] && sit.weights[1] > 0.5 * sit.weights[0]);
         let chair = named(vec![0.95, 0.01, 0.04]);
         assert_eq!(sit.name_share(&chair, &scene.phrases), 1.0);
+        let sofa = named(vec![0.01, 0.95, 0.04]);
+        assert_eq!(sit.name_share(&sofa, &scene.phrases), 1.0);
     }
 
     #[test]
