@@ -35,6 +35,8 @@ const HEADER: &str = "\
 #                     grows to it where no camera saw past its end
 #   largest_side_m    largest longer horizontal side; touching pieces named alike fold only while
 #                     together they are at most 1.5 times as long
+#   tallest_m         largest height; something more than twice as tall is not one of its
+#                     objects, whatever the semantic features say
 #   stands_on_floor   every object of the class stands on the floor; a box seen floating above
 #                     it reaches down to it
 #   typical_height_m  median height (classes that do not stand on the floor); a box seen much
@@ -96,6 +98,7 @@ fn measured_class(class: &ObjectClass, boxes: &[OrientedBox]) -> VocabularyClass
         smallest_depth_m: faced.then(|| centimetres(depths[0])),
         typical_length_m: faced.then(|| centimetres(lengths[lengths.len() / 2])),
         largest_side_m: lengths.last().copied().map(centimetres),
+        tallest_m: heights.last().copied().map(centimetres),
         stands_on_floor,
         typical_height_m: (!stands_on_floor && !heights.is_empty())
             .then(|| centimetres(heights[heights.len() / 2])),
@@ -174,8 +177,18 @@ mod tests {
                 "{c:?}"
             );
         }
-        // Every class has a largest side; furniture stands on the floor, things on it do not.
+        // Every class has a largest side and a tallest object, at least as tall as its typical
+        // one; furniture stands on the floor, things on it do not.
         assert!(file.classes.iter().all(|c| c.largest_side_m.is_some()));
+        for c in &file.classes {
+            let tallest = c.tallest_m.unwrap_or(f64::NAN);
+            assert!(
+                tallest > 0.0 && c.typical_height_m.is_none_or(|t| t <= tallest),
+                "{c:?}"
+            );
+        }
+        let tallest = |name: &str| class(name).tallest_m.unwrap_or(f64::NAN);
+        assert!(tallest("box") < 0.5 && tallest("chair") > 0.8, "{file:?}");
         for name in ["chair", "table", "bed", "cabinet", "refrigerator"] {
             assert!(class(name).stands_on_floor, "{name}");
         }

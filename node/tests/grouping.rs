@@ -5,6 +5,7 @@
 
 use groupforward::group::blobs::blobs;
 use groupforward::group::hdbscan::{hdbscan, HdbscanParams};
+use groupforward::group::semantics::MeasuredSize;
 use groupforward::group::{
     assignment_probabilities, embedding_distance, group, merge_close_clusters, GroupError,
     Grouping, GroupingParams, ResidualPass,
@@ -434,9 +435,12 @@ fn a_name_whose_objects_are_never_that_long_gives_way_to_the_next_object_name() 
     let v = vocabulary(0.05);
     let chairish = [0.9, 0.85, 0.3];
     let best = |length: Option<f64>| {
-        v.ranked(&v.probabilities_given(&chairish, length), 1)[0]
-            .0
-            .clone()
+        v.ranked(
+            &v.probabilities_given(&chairish, length.map(MeasuredSize::length)),
+            1,
+        )[0]
+        .0
+        .clone()
     };
     assert_eq!(best(None), "chair");
     assert_eq!(best(Some(0.5)), "chair", "a chair's length");
@@ -450,7 +454,7 @@ fn a_name_whose_objects_are_never_that_long_gives_way_to_the_next_object_name() 
         "table",
         "longer than two chairs side by side"
     );
-    let p = v.probabilities_given(&chairish, Some(1.2));
+    let p = v.probabilities_given(&chairish, Some(MeasuredSize::length(1.2)));
     assert_eq!(p[0], 0.0);
     assert_eq!(
         p[2], 0.0,
@@ -461,11 +465,15 @@ fn a_name_whose_objects_are_never_that_long_gives_way_to_the_next_object_name() 
     // and for a length that is no number.
     assert_eq!(best(Some(10.0)), "chair");
     assert_eq!(
-        v.ranked(&v.probabilities_given(&[0.1, 0.3, 0.9], Some(0.3)), 1)[0].0,
+        v.ranked(
+            &v.probabilities_given(&[0.1, 0.3, 0.9], Some(MeasuredSize::length(0.3))),
+            1
+        )[0]
+        .0,
         "other"
     );
     assert_eq!(
-        v.probabilities_given(&chairish, Some(f64::NAN)),
+        v.probabilities_given(&chairish, Some(MeasuredSize::length(f64::NAN))),
         v.probabilities(&chairish)
     );
     // A name the features give no real share does not take over: a chair 1.2 m long whose
@@ -473,16 +481,65 @@ fn a_name_whose_objects_are_never_that_long_gives_way_to_the_next_object_name() 
     let sure = [0.9, 0.5, 0.3];
     assert!(v.probabilities(&sure)[1] < groupforward::group::semantics::MIN_ADMITTED_SHARE);
     assert_eq!(
-        v.ranked(&v.probabilities_given(&sure, Some(1.2)), 1)[0].0,
+        v.ranked(
+            &v.probabilities_given(&sure, Some(MeasuredSize::length(1.2))),
+            1
+        )[0]
+        .0,
         "chair"
     );
     // A vocabulary without priors names by the features alone.
     let mut without = v.clone();
     without.priors = Default::default();
     assert_eq!(
-        without.ranked(&without.probabilities_given(&chairish, Some(1.2)), 1)[0].0,
+        without.ranked(
+            &without.probabilities_given(&chairish, Some(MeasuredSize::length(1.2))),
+            1
+        )[0]
+        .0,
         "chair"
     );
+}
+
+#[test]
+fn a_name_whose_objects_are_never_that_tall_gives_way_to_the_next_object_name() {
+    // The built-in priors: no box is taller than 0.34 m, no chair than 1.06 m. A chair whose
+    // colours the features read as a box's (benchmark 13214's brown chair, 0.99 m tall).
+    let mut v = vocabulary(0.05);
+    v.phrases[1] = "box".into();
+    let boxish = [0.85, 0.9, 0.3];
+    let best = |v: &groupforward::group::semantics::Vocabulary, height_m: f64| {
+        let size = MeasuredSize {
+            length_m: 0.45,
+            height_m,
+        };
+        v.ranked(&v.probabilities_given(&boxish, Some(size)), 1)[0]
+            .0
+            .clone()
+    };
+    assert_eq!(best(&v, 0.3), "box", "a box's height");
+    assert_eq!(best(&v, 0.6), "box", "a box on another");
+    assert_eq!(best(&v, 0.95), "chair", "taller than two boxes stacked");
+    assert_eq!(
+        best(&v, f64::NAN),
+        "box",
+        "a height not measured rules out nothing"
+    );
+    let size = MeasuredSize {
+        length_m: 0.45,
+        height_m: 0.95,
+    };
+    let p = v.probabilities_given(&boxish, Some(size));
+    assert_eq!(p[1], 0.0, "{p:?}");
+    assert!((p.iter().sum::<f32>() - 1.0).abs() < 1e-5, "{p:?}");
+    // Where the chair's name stands, the box keeps its share: one may rest on the chair (a
+    // pillow merged into its bed, benchmark 14017).
+    let chairish = [0.9, 0.85, 0.3];
+    let plain = v.probabilities(&chairish);
+    assert_eq!(v.probabilities_given(&chairish, Some(size)), plain);
+    // A name without a tallest object admits any height.
+    v.phrases[1] = "whiteboard".into();
+    assert_eq!(best(&v, 0.95), "whiteboard");
 }
 
 #[test]
@@ -674,7 +731,7 @@ fn a_long_object_named_by_a_name_that_fits_keeps_no_share_for_names_that_cannot_
     let tableish = [0.85, 0.9, 0.3];
     let plain = v.probabilities(&tableish);
     assert!(plain[0] > 0.2 && plain[1] > plain[0], "{plain:?}");
-    let p = v.probabilities_given(&tableish, Some(1.2));
+    let p = v.probabilities_given(&tableish, Some(MeasuredSize::length(1.2)));
     assert_eq!(p[0], 0.0, "{p:?}");
     assert!(
         p[1] > plain[1] && (p.iter().sum::<f32>() - 1.0).abs() < 1e-5,
@@ -685,7 +742,10 @@ fn a_long_object_named_by_a_name_that_fits_keeps_no_share_for_names_that_cannot_
         "structure keeps its share"
     );
     // At a chair's length nothing changes.
-    assert_eq!(v.probabilities_given(&tableish, Some(0.5)), plain);
+    assert_eq!(
+        v.probabilities_given(&tableish, Some(MeasuredSize::length(0.5))),
+        plain
+    );
 }
 
 #[test]

@@ -2,7 +2,7 @@
 
 use glam::Vec3;
 
-use crate::group::semantics::Vocabulary;
+use crate::group::semantics::{MeasuredSize, Vocabulary};
 use crate::recon::boxes::{OrientedBox, DEFAULT_TRIM};
 use crate::recon::gaussians::{voxel_downsample, Gaussians};
 use crate::recon::round::fit_object_box;
@@ -76,16 +76,18 @@ impl Instance {
         (lo + hi) / 2.0
     }
 
-    /// Its length: the longer horizontal side of its points ([`OrientedBox::principal_length`]).
-    pub fn length_m(&self) -> f64 {
-        OrientedBox::principal_length(&self.gaussians.means, DEFAULT_TRIM)
+    /// Its length and height as its points measure them ([`OrientedBox::principal_extent`]).
+    pub fn measured_size(&self) -> MeasuredSize {
+        let (length_m, height_m) =
+            OrientedBox::principal_extent(&self.gaussians.means, DEFAULT_TRIM);
+        MeasuredSize { length_m, height_m }
     }
 
     /// p(name) for every phrase of `vocabulary`, in its order: its prototype's, less the names
-    /// whose objects are never as long as it is, `length_m` ([`Instance::length_m`], measured
-    /// once by the caller; [`Vocabulary::probabilities_given`]).
-    pub fn name_probabilities(&self, vocabulary: &Vocabulary, length_m: f64) -> Vec<f32> {
-        vocabulary.probabilities_given(&self.prototype, Some(length_m))
+    /// whose objects are never as long or as tall as it is, `size` ([`Instance::measured_size`],
+    /// measured once by the caller; [`Vocabulary::probabilities_given`]).
+    pub fn name_probabilities(&self, vocabulary: &Vocabulary, size: MeasuredSize) -> Vec<f32> {
+        vocabulary.probabilities_given(&self.prototype, Some(size))
     }
 
     /// The box the map publishes for this instance (and the evaluation scores): fitted to its

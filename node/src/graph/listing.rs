@@ -100,15 +100,15 @@ fn list<'a>(
         .filter_map(|(i, tentative)| {
             // Longer than any object of the vocabulary could be: no object (a room-sized
             // instance named "sink" was listed on benchmark 9604).
-            let length = i.length_m();
-            if vocabulary.is_some_and(|v| v.admits_no_object(length)) {
-                tracing::debug!(instance = %i.id, length, "not listed: longer than any object");
+            let size = i.measured_size();
+            if vocabulary.is_some_and(|v| v.admits_no_object(size.length_m)) {
+                tracing::debug!(instance = %i.id, length = size.length_m, "not listed: longer than any object");
                 return None;
             }
             // Named once: three completions, the published hypotheses and referring read these
             // names.
             let names = vocabulary
-                .map(|v| i.name_probabilities(v, length))
+                .map(|v| i.name_probabilities(v, size))
                 .unwrap_or_default();
             let name = vocabulary
                 .and_then(|v| v.ranked(&names, 1).into_iter().next())

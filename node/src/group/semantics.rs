@@ -30,7 +30,8 @@ pub struct SemanticsSection {
 }
 
 pub use super::vocabulary::{
-    default_vocabulary, ClassPriors, VocabularyFile, DEFAULT_VOCABULARY_YAML, OTHER_PHRASE,
+    default_vocabulary, ClassPriors, MeasuredSize, VocabularyFile, DEFAULT_VOCABULARY_YAML,
+    OTHER_PHRASE,
 };
 
 pub const DEFAULT_SEMANTIC_TEMPERATURE: f32 = 0.05;
@@ -383,20 +384,22 @@ impl Vocabulary {
         softmax(&cosines, self.temperature)
     }
 
-    /// p(phrase | prototype, length): [`Vocabulary::probabilities`] less the object phrases whose
-    /// objects are never `length_m` long ([`ClassPriors::admits_length`]), renormalised; where
-    /// the best phrase is one of those (a table seen whole is no box, however box-like its
-    /// features), the object phrases that admit the length, renormalised. Structure
-    /// ([`OTHER_PHRASE`]) takes no share that way: what the features call an object stays one.
-    /// As without a length when none is given, the features call it structure, or the phrases
-    /// that admit it hold less than [`MIN_ADMITTED_SHARE`].
-    pub fn probabilities_given(&self, prototype: &[f32], length_m: Option<f64>) -> Vec<f32> {
+    /// p(phrase | prototype, size): [`Vocabulary::probabilities`] less the object phrases whose
+    /// objects are never as long as `size` ([`ClassPriors::admits_length`]), renormalised; where
+    /// the best phrase's objects are never as long or as tall ([`ClassPriors::admits_size`]: a
+    /// table seen whole is no box, nor a chair as tall as a table, however box-like their
+    /// features), the object phrases that admit the whole size, renormalised. While the best
+    /// phrase stands, names of shorter objects keep their share (one may rest on the instance).
+    /// Structure ([`OTHER_PHRASE`]) takes no share that way: what the features call an object
+    /// stays one. As without a size when none is given, the features call it structure, or the
+    /// phrases that admit it hold less than [`MIN_ADMITTED_SHARE`].
+    pub fn probabilities_given(&self, prototype: &[f32], size: Option<MeasuredSize>) -> Vec<f32> {
         let p = self.probabilities(prototype);
-        let Some(length) = length_m.filter(|l| l.is_finite()) else {
+        let Some(size) = size.filter(|s| s.length_m.is_finite() || s.height_m.is_finite()) else {
             return p;
         };
         let object = |i: usize| self.phrases[i] != OTHER_PHRASE;
-        let admitted = |i: usize| object(i) && self.priors.admits_length(&self.phrases[i], length);
+        let admitted = |i: usize| object(i) && self.priors.admits_size(&self.phrases[i], size);
         let best = (0..p.len()).max_by(|&a, &b| p[a].total_cmp(&p[b]).then(b.cmp(&a)));
         let Some(best) = best.filter(|&b| object(b)) else {
             return p;
@@ -404,8 +407,14 @@ impl Vocabulary {
         if admitted(best) {
             // The name stands; the object names that could not be this long lose their share,
             // so a query for one of them does not answer it (a 1.1 m table whose second name is
-            // chair answered "all the chairs" where no chair was seen: benchmark 12810).
-            return renormalised(p, |i| admitted(i) || !object(i));
+            // chair answered "all the chairs" where no chair was seen: benchmark 12810). Names of
+            // shorter objects keep theirs: an instance may hold one on it (a pillow merged into
+            // its bed still answered "the bed with a pillow on it", benchmark 14017).
+            let as_long = |i: usize| {
+                !(object(i) && size.length_m.is_finite())
+                    || self.priors.admits_length(&self.phrases[i], size.length_m)
+            };
+            return renormalised(p, as_long);
         }
         let kept: f32 = (0..p.len()).filter(|&i| admitted(i)).map(|i| p[i]).sum();
         if kept < MIN_ADMITTED_SHARE {

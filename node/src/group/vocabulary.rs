@@ -20,6 +20,28 @@ pub const OTHER_PHRASE: &str = "other";
 /// to 2.4 times those names' largest sides.
 pub const NAME_LENGTH_MARGIN: f64 = 2.0;
 
+/// Something taller than this many times a class's tallest object is not one of its objects: two
+/// of them stacked would be as tall. The same margin as the length's, for the same reason.
+pub const NAME_HEIGHT_MARGIN: f64 = 2.0;
+
+/// An instance's size as measured from its points (m): its longer horizontal side and its
+/// height. A side that is no number (not measured) rules out no name.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MeasuredSize {
+    pub length_m: f64,
+    pub height_m: f64,
+}
+
+impl MeasuredSize {
+    /// A length without a height.
+    pub fn length(length_m: f64) -> Self {
+        Self {
+            length_m,
+            height_m: f64::NAN,
+        }
+    }
+}
+
 /// The default vocabulary file, compiled in. Generated from the simulator by `groupforward sim
 /// vocabulary`; the harness's tests keep the two in sync.
 pub const DEFAULT_VOCABULARY_YAML: &str = include_str!("../../data/default_vocabulary.yaml");
@@ -64,6 +86,10 @@ pub struct VocabularyClass {
     /// together they are not much longer.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub largest_side_m: Option<f64>,
+    /// The tallest its objects are (m): something much taller is not one of them, whatever its
+    /// colours say (a chair the features call a box).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tallest_m: Option<f64>,
     /// Its objects stand on the floor: a box seen floating above it reaches down to it.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub stands_on_floor: bool,
@@ -99,6 +125,7 @@ impl VocabularyFile {
                 class.smallest_depth_m,
                 class.typical_length_m,
                 class.largest_side_m,
+                class.tallest_m,
                 class.typical_height_m,
             ];
             if lengths
@@ -200,6 +227,28 @@ impl ClassPriors {
             .is_none_or(|side| length_m <= NAME_LENGTH_MARGIN * side)
     }
 
+    /// The tallest `name`'s objects are, if known.
+    pub fn tallest(&self, name: &str) -> Option<f64> {
+        self.class(name)?.tallest_m
+    }
+
+    /// Whether something `height_m` tall could be one of `name`'s objects: at most
+    /// [`NAME_HEIGHT_MARGIN`] times its tallest (any height when the class has none, or the
+    /// height is no number).
+    pub fn admits_height(&self, name: &str, height_m: f64) -> bool {
+        !height_m.is_finite()
+            || self
+                .tallest(name)
+                .is_none_or(|tallest| height_m <= NAME_HEIGHT_MARGIN * tallest)
+    }
+
+    /// Whether an instance of `size` could be one of `name`'s objects: its length
+    /// ([`ClassPriors::admits_length`]) and its height ([`ClassPriors::admits_height`]).
+    pub fn admits_size(&self, name: &str, size: MeasuredSize) -> bool {
+        (!size.length_m.is_finite() || self.admits_length(name, size.length_m))
+            && self.admits_height(name, size.height_m)
+    }
+
     /// The typical height of `name`'s objects, if it has one (classes that do not stand on the
     /// floor).
     pub fn typical_height(&self, name: &str) -> Option<f64> {
@@ -259,6 +308,7 @@ mod tests {
             "largest_side_m: .nan",
             "typical_length_m: 0",
             "typical_height_m: -0.5",
+            "tallest_m: .inf",
             "typical_depth_m: 0.3\n    smallest_depth_m: 0.5",
         ] {
             let text = format!("classes:\n  - name: crate\n    {bad}\n");

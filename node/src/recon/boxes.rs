@@ -119,12 +119,21 @@ impl OrientedBox {
     /// [`OrientedBox::fit`]: an object's length in one pass, without the yaw search (an L of two
     /// faces reads a little longer along its diagonal). 0 without finite points.
     pub fn principal_length(points: &[Vec3], trim: f64) -> f64 {
+        Self::principal_extent(points, trim).0
+    }
+
+    /// The longer horizontal side and the height of `points`' box at their principal axis,
+    /// trimmed like [`OrientedBox::fit`] ([`OrientedBox::principal_length`]). (0, 0) without
+    /// finite points.
+    pub fn principal_extent(points: &[Vec3], trim: f64) -> (f64, f64) {
         let points = finite_points(points);
         if points.is_empty() {
-            return 0.0;
+            return (0.0, 0.0);
         }
-        let fitted = Self::fit_at_yaw(&points, principal_yaw(&points), trim, (0.0, 0.0));
-        fitted.size.x.max(fitted.size.y)
+        let mut z: Vec<f64> = points.iter().map(|p| p.z).collect();
+        let vertical = trimmed_range(&mut z, trim);
+        let fitted = Self::fit_at_yaw(&points, principal_yaw(&points), trim, vertical);
+        (fitted.size.x.max(fitted.size.y), fitted.size.z)
     }
 
     /// How close `points` lie to this box's vertical sides: Σ 1 / max(d, 4 cm) over the points,
@@ -283,6 +292,12 @@ mod tests {
             .collect();
         let length = OrientedBox::principal_length(&rectangle, 0.0);
         assert!((length - 2.0).abs() < 0.01, "{length}");
+        let (_, flat) = OrientedBox::principal_extent(&rectangle, 0.0);
+        assert!(flat.abs() < 1e-6, "{flat}");
+        let stood: Vec<Vec3> = rectangle.iter().map(|p| Vec3::new(p.x, p.y, p.y)).collect();
+        let (_, height) = OrientedBox::principal_extent(&stood, 0.0);
+        assert!(height > 0.5 && height.is_finite(), "{height}");
+        assert_eq!(OrientedBox::principal_extent(&[], 0.0), (0.0, 0.0));
         assert_eq!(OrientedBox::principal_length(&[], 0.0), 0.0);
         assert_eq!(OrientedBox::principal_length(&[Vec3::ONE; 5], 0.02), 0.0);
         let with_nan = [Vec3::ZERO, Vec3::new(f32::NAN, 0.0, 0.0), Vec3::X];
