@@ -429,6 +429,14 @@ fn hypotheses_rank_phrases_by_prototype_cosine() {
     assert_eq!(names, scaled);
 }
 
+/// A measured length without a height (a height that is no number rules out no name).
+fn length_only(length_m: f64) -> MeasuredSize {
+    MeasuredSize {
+        length_m,
+        height_m: f64::NAN,
+    }
+}
+
 #[test]
 fn a_name_whose_objects_are_never_that_long_gives_way_to_the_next_object_name() {
     // The built-in priors: no chair is longer than 0.52 m, no table than 1.38 m.
@@ -436,7 +444,7 @@ fn a_name_whose_objects_are_never_that_long_gives_way_to_the_next_object_name() 
     let chairish = [0.9, 0.85, 0.3];
     let best = |length: Option<f64>| {
         v.ranked(
-            &v.probabilities_given(&chairish, length.map(MeasuredSize::length)),
+            &v.probabilities_given(&chairish, length.map(length_only)),
             1,
         )[0]
         .0
@@ -454,7 +462,7 @@ fn a_name_whose_objects_are_never_that_long_gives_way_to_the_next_object_name() 
         "table",
         "longer than two chairs side by side"
     );
-    let p = v.probabilities_given(&chairish, Some(MeasuredSize::length(1.2)));
+    let p = v.probabilities_given(&chairish, Some(length_only(1.2)));
     assert_eq!(p[0], 0.0);
     assert_eq!(
         p[2], 0.0,
@@ -466,14 +474,14 @@ fn a_name_whose_objects_are_never_that_long_gives_way_to_the_next_object_name() 
     assert_eq!(best(Some(10.0)), "chair");
     assert_eq!(
         v.ranked(
-            &v.probabilities_given(&[0.1, 0.3, 0.9], Some(MeasuredSize::length(0.3))),
+            &v.probabilities_given(&[0.1, 0.3, 0.9], Some(length_only(0.3))),
             1
         )[0]
         .0,
         "other"
     );
     assert_eq!(
-        v.probabilities_given(&chairish, Some(MeasuredSize::length(f64::NAN))),
+        v.probabilities_given(&chairish, Some(length_only(f64::NAN))),
         v.probabilities(&chairish)
     );
     // A name the features give no real share does not take over: a chair 1.2 m long whose
@@ -481,11 +489,7 @@ fn a_name_whose_objects_are_never_that_long_gives_way_to_the_next_object_name() 
     let sure = [0.9, 0.5, 0.3];
     assert!(v.probabilities(&sure)[1] < groupforward::group::semantics::MIN_ADMITTED_SHARE);
     assert_eq!(
-        v.ranked(
-            &v.probabilities_given(&sure, Some(MeasuredSize::length(1.2))),
-            1
-        )[0]
-        .0,
+        v.ranked(&v.probabilities_given(&sure, Some(length_only(1.2))), 1)[0].0,
         "chair"
     );
     // A vocabulary without priors names by the features alone.
@@ -493,7 +497,7 @@ fn a_name_whose_objects_are_never_that_long_gives_way_to_the_next_object_name() 
     without.priors = Default::default();
     assert_eq!(
         without.ranked(
-            &without.probabilities_given(&chairish, Some(MeasuredSize::length(1.2))),
+            &without.probabilities_given(&chairish, Some(length_only(1.2))),
             1
         )[0]
         .0,
@@ -731,7 +735,7 @@ fn a_long_object_named_by_a_name_that_fits_keeps_no_share_for_names_that_cannot_
     let tableish = [0.85, 0.9, 0.3];
     let plain = v.probabilities(&tableish);
     assert!(plain[0] > 0.2 && plain[1] > plain[0], "{plain:?}");
-    let p = v.probabilities_given(&tableish, Some(MeasuredSize::length(1.2)));
+    let p = v.probabilities_given(&tableish, Some(length_only(1.2)));
     assert_eq!(p[0], 0.0, "{p:?}");
     assert!(
         p[1] > plain[1] && (p.iter().sum::<f32>() - 1.0).abs() < 1e-5,
@@ -743,7 +747,7 @@ fn a_long_object_named_by_a_name_that_fits_keeps_no_share_for_names_that_cannot_
     );
     // At a chair's length nothing changes.
     assert_eq!(
-        v.probabilities_given(&tableish, Some(MeasuredSize::length(0.5))),
+        v.probabilities_given(&tableish, Some(length_only(0.5))),
         plain
     );
 }

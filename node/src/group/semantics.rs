@@ -410,10 +410,8 @@ impl Vocabulary {
             // chair answered "all the chairs" where no chair was seen: benchmark 12810). Names of
             // shorter objects keep theirs: an instance may hold one on it (a pillow merged into
             // its bed still answered "the bed with a pillow on it", benchmark 14017).
-            let as_long = |i: usize| {
-                !(object(i) && size.length_m.is_finite())
-                    || self.priors.admits_length(&self.phrases[i], size.length_m)
-            };
+            let as_long =
+                |i: usize| !object(i) || self.priors.admits_length(&self.phrases[i], size.length_m);
             return renormalised(p, as_long);
         }
         let kept: f32 = (0..p.len()).filter(|&i| admitted(i)).map(|i| p[i]).sum();

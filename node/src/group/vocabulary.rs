@@ -32,16 +32,6 @@ pub struct MeasuredSize {
     pub height_m: f64,
 }
 
-impl MeasuredSize {
-    /// A length without a height.
-    pub fn length(length_m: f64) -> Self {
-        Self {
-            length_m,
-            height_m: f64::NAN,
-        }
-    }
-}
-
 /// The default vocabulary file, compiled in. Generated from the simulator by `groupforward sim
 /// vocabulary`; the harness's tests keep the two in sync.
 pub const DEFAULT_VOCABULARY_YAML: &str = include_str!("../../data/default_vocabulary.yaml");
@@ -221,10 +211,12 @@ impl ClassPriors {
 
     /// Whether something `length_m` long (its longer horizontal side, as measured) could be one
     /// of `name`'s objects: at most [`NAME_LENGTH_MARGIN`] times its largest side (any length
-    /// when the class has none).
+    /// when the class has none, or the length is no number).
     pub fn admits_length(&self, name: &str, length_m: f64) -> bool {
-        self.largest_side(name)
-            .is_none_or(|side| length_m <= NAME_LENGTH_MARGIN * side)
+        !length_m.is_finite()
+            || self
+                .largest_side(name)
+                .is_none_or(|side| length_m <= NAME_LENGTH_MARGIN * side)
     }
 
     /// The tallest `name`'s objects are, if known.
@@ -245,8 +237,7 @@ impl ClassPriors {
     /// Whether an instance of `size` could be one of `name`'s objects: its length
     /// ([`ClassPriors::admits_length`]) and its height ([`ClassPriors::admits_height`]).
     pub fn admits_size(&self, name: &str, size: MeasuredSize) -> bool {
-        (!size.length_m.is_finite() || self.admits_length(name, size.length_m))
-            && self.admits_height(name, size.height_m)
+        self.admits_length(name, size.length_m) && self.admits_height(name, size.height_m)
     }
 
     /// The typical height of `name`'s objects, if it has one (classes that do not stand on the

@@ -119,7 +119,11 @@ impl OrientedBox {
     /// [`OrientedBox::fit`]: an object's length in one pass, without the yaw search (an L of two
     /// faces reads a little longer along its diagonal). 0 without finite points.
     pub fn principal_length(points: &[Vec3], trim: f64) -> f64 {
-        Self::principal_extent(points, trim).0
+        let points = finite_points(points);
+        if points.is_empty() {
+            return 0.0;
+        }
+        Self::length_at_principal_axis(&points, trim)
     }
 
     /// The longer horizontal side and the height of `points`' box at their principal axis,
@@ -131,9 +135,14 @@ impl OrientedBox {
             return (0.0, 0.0);
         }
         let mut z: Vec<f64> = points.iter().map(|p| p.z).collect();
-        let vertical = trimmed_range(&mut z, trim);
-        let fitted = Self::fit_at_yaw(&points, principal_yaw(&points), trim, vertical);
-        (fitted.size.x.max(fitted.size.y), fitted.size.z)
+        let (bottom, top) = trimmed_range(&mut z, trim);
+        (Self::length_at_principal_axis(&points, trim), top - bottom)
+    }
+
+    /// [`OrientedBox::principal_length`] of finite, non-empty `points`.
+    fn length_at_principal_axis(points: &[DVec3], trim: f64) -> f64 {
+        let fitted = Self::fit_at_yaw(points, principal_yaw(points), trim, (0.0, 0.0));
+        fitted.size.x.max(fitted.size.y)
     }
 
     /// How close `points` lie to this box's vertical sides: Σ 1 / max(d, 4 cm) over the points,
