@@ -30,7 +30,8 @@ const HEADER: &str = "\
 #                     high, which a camera can see alone); a face seen from one side is completed
 #                     to it
 #   smallest_depth_m  smallest shorter horizontal side (the same classes); a face with a wall
-#                     closer behind it is the object's back
+#                     closer behind it is the object's back; something narrower across than
+#                     0.6 of it is not one of its objects, whatever the semantic features say
 #   typical_length_m  median longer horizontal side (the same classes); an object seen in part
 #                     grows to it where no camera saw past its end
 #   largest_side_m    largest longer horizontal side; touching pieces named alike fold only while

@@ -547,6 +547,48 @@ fn a_name_whose_objects_are_never_that_tall_gives_way_to_the_next_object_name() 
 }
 
 #[test]
+fn a_name_whose_objects_are_all_wider_gives_way_to_the_next_object_name() {
+    use groupforward::group::vocabulary::NAME_SMALLEST_SHARE;
+    // The built-in priors: no sofa is less than 0.77 m deep; a trash bin has no depth prior. A
+    // trash bin the features read as a sofa's (benchmark 14403, 0.4 m across).
+    let mut v = vocabulary(0.05);
+    v.phrases[0] = "sofa".into();
+    v.phrases[1] = "trash bin".into();
+    let sofaish = [0.9, 0.85, 0.3];
+    let smallest = v.priors.smallest_depth("sofa").unwrap();
+    let best = |v: &groupforward::group::semantics::Vocabulary, length_m: f64| {
+        v.ranked(
+            &v.probabilities_given(&sofaish, Some(length_only(length_m))),
+            1,
+        )[0]
+        .0
+        .clone()
+    };
+    assert_eq!(best(&v, 1.9), "sofa", "a sofa's length");
+    assert_eq!(
+        best(&v, NAME_SMALLEST_SHARE * smallest + 0.01),
+        "sofa",
+        "a piece of one, as wide as a good share of its depth"
+    );
+    assert_eq!(best(&v, 0.4), "trash bin", "narrower than any sofa is deep");
+    assert_eq!(
+        best(&v, f64::NAN),
+        "sofa",
+        "a length not measured rules out nothing"
+    );
+    let p = v.probabilities_given(&sofaish, Some(length_only(0.4)));
+    assert_eq!(p[0], 0.0, "{p:?}");
+    assert!((p.iter().sum::<f32>() - 1.0).abs() < 1e-5, "{p:?}");
+    // Where the admitted names hold too little, the name stands (a piece of a larger object).
+    let surely_sofa = [1.0, 0.0, 0.0];
+    let p = v.probabilities_given(&surely_sofa, Some(length_only(0.4)));
+    assert_eq!(p, v.probabilities(&surely_sofa));
+    // A name without a smallest depth admits any small length.
+    v.phrases[0] = "whiteboard".into();
+    assert_eq!(best(&v, 0.4), "whiteboard");
+}
+
+#[test]
 fn the_object_list_leaves_out_structure_and_small_pieces_named_unsurely_or_seen_once() {
     use groupforward::group::semantics::{
         CONFIDENT_NAME, MIN_LISTED_GAUSSIANS, MIN_SMALL_SIGHTINGS,

@@ -26,6 +26,15 @@ pub const NAME_LENGTH_MARGIN: f64 = 2.0;
 /// 14000-14019, checked on 14200-14219 and layouts 820-839 (history.md, Referring).
 pub const NAME_HEIGHT_MARGIN: f64 = 2.0;
 
+/// Something shorter across than this share of a class's smallest depth is not one of its
+/// objects: even the shorter side of the smallest of them is longer (a trash bin 0.4 m across,
+/// seen by four windows, named sofa; no sofa is less than 0.77 m deep). A piece of a larger object
+/// is smaller too, so the name gives way only where the names that admit the size hold their share
+/// ([`crate::group::semantics::MIN_ADMITTED_SHARE`]). Read on benchmark 14400-14419 (three trash
+/// bins named sofa); checked on 14200-14219 and layouts 820-839, fresh 14600-14619 and layouts
+/// 860-879 (history.md, Referring).
+pub const NAME_SMALLEST_SHARE: f64 = 0.6;
+
 /// An instance's size as measured from its points (m): its longer horizontal side and its
 /// height. A side that is no number (not measured) rules out no name.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -66,7 +75,8 @@ pub struct VocabularyClass {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub typical_depth_m: Option<f64>,
     /// The smallest depth its objects have: a face with a wall closer behind it is the object's
-    /// back, and the object stands in front of it.
+    /// back, and the object stands in front of it; something narrower across than
+    /// [`NAME_SMALLEST_SHARE`] of it is not one of them.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub smallest_depth_m: Option<f64>,
     /// The length (longer horizontal side, m) its objects typically have: an object seen in
@@ -236,10 +246,23 @@ impl ClassPriors {
                 .is_none_or(|tallest| height_m <= NAME_HEIGHT_MARGIN * tallest)
     }
 
-    /// Whether an instance of `size` could be one of `name`'s objects: its length
-    /// ([`ClassPriors::admits_length`]) and its height ([`ClassPriors::admits_height`]).
+    /// Whether something `length_m` long (its longer horizontal side, as measured) is not too
+    /// small across to be one of `name`'s objects: at least [`NAME_SMALLEST_SHARE`] of their
+    /// smallest depth (any length when the class has none, or the length is no number).
+    pub fn admits_small_length(&self, name: &str, length_m: f64) -> bool {
+        !length_m.is_finite()
+            || self
+                .smallest_depth(name)
+                .is_none_or(|depth| length_m >= NAME_SMALLEST_SHARE * depth)
+    }
+
+    /// Whether an instance of `size` could be one of `name`'s objects: its length, neither too
+    /// long nor too short ([`ClassPriors::admits_length`], [`ClassPriors::admits_small_length`]),
+    /// and its height ([`ClassPriors::admits_height`]).
     pub fn admits_size(&self, name: &str, size: MeasuredSize) -> bool {
-        self.admits_length(name, size.length_m) && self.admits_height(name, size.height_m)
+        self.admits_length(name, size.length_m)
+            && self.admits_small_length(name, size.length_m)
+            && self.admits_height(name, size.height_m)
     }
 
     /// The typical height of `name`'s objects, if it has one (classes that do not stand on the
