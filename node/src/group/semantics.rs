@@ -386,9 +386,10 @@ impl Vocabulary {
 
     /// p(phrase | prototype, size): [`Vocabulary::probabilities`] less the object phrases whose
     /// objects are never as long as `size` ([`ClassPriors::admits_length`]), renormalised; where
-    /// the best phrase's objects are never as long or as tall ([`ClassPriors::admits_size`]: a
-    /// table seen whole is no box, nor a chair as tall as a table, however box-like their
-    /// features), the object phrases that admit the whole size, renormalised. While the best
+    /// the best phrase's objects are never as long, as tall or as narrow
+    /// ([`ClassPriors::admits_size`]: a table seen whole is no box, nor a chair as tall as a
+    /// table, nor a trash bin a sofa, whatever their features), the object phrases that admit the
+    /// whole size, renormalised. While the best
     /// phrase stands, names of shorter objects keep their share (one may rest on the instance).
     /// Structure ([`OTHER_PHRASE`]) takes no share that way: what the features call an object
     /// stays one. As without a size when none is given, the features call it structure, or the

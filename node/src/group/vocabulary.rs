@@ -225,10 +225,9 @@ impl ClassPriors {
     /// of `name`'s objects: at most [`NAME_LENGTH_MARGIN`] times its largest side (any length
     /// when the class has none, or the length is no number).
     pub fn admits_length(&self, name: &str, length_m: f64) -> bool {
-        !length_m.is_finite()
-            || self
-                .largest_side(name)
-                .is_none_or(|side| length_m <= NAME_LENGTH_MARGIN * side)
+        unknown_or(length_m, self.largest_side(name), |side| {
+            length_m <= NAME_LENGTH_MARGIN * side
+        })
     }
 
     /// The tallest `name`'s objects are, if known.
@@ -240,20 +239,18 @@ impl ClassPriors {
     /// [`NAME_HEIGHT_MARGIN`] times its tallest (any height when the class has none, or the
     /// height is no number).
     pub fn admits_height(&self, name: &str, height_m: f64) -> bool {
-        !height_m.is_finite()
-            || self
-                .tallest(name)
-                .is_none_or(|tallest| height_m <= NAME_HEIGHT_MARGIN * tallest)
+        unknown_or(height_m, self.tallest(name), |tallest| {
+            height_m <= NAME_HEIGHT_MARGIN * tallest
+        })
     }
 
     /// Whether something `length_m` long (its longer horizontal side, as measured) is not too
     /// small across to be one of `name`'s objects: at least [`NAME_SMALLEST_SHARE`] of their
     /// smallest depth (any length when the class has none, or the length is no number).
     pub fn admits_small_length(&self, name: &str, length_m: f64) -> bool {
-        !length_m.is_finite()
-            || self
-                .smallest_depth(name)
-                .is_none_or(|depth| length_m >= NAME_SMALLEST_SHARE * depth)
+        unknown_or(length_m, self.smallest_depth(name), |depth| {
+            length_m >= NAME_SMALLEST_SHARE * depth
+        })
     }
 
     /// Whether an instance of `size` could be one of `name`'s objects: its length, neither too
@@ -280,6 +277,13 @@ impl ClassPriors {
     pub fn functions(&self, name: &str) -> &[String] {
         self.class(name).map_or(&[], |c| c.functions.as_slice())
     }
+}
+
+/// Whether a `measured` side passes `check` against a class's `prior`: it does when either is
+/// unknown (a side that is no number was not measured; a class without the prior rules out
+/// nothing), the admission rules' common ground.
+fn unknown_or(measured: f64, prior: Option<f64>, check: impl FnOnce(f64) -> bool) -> bool {
+    !measured.is_finite() || prior.is_none_or(check)
 }
 
 /// Where a node's vocabulary file comes from: a path, or the built-in default.
