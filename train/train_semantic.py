@@ -8,6 +8,9 @@ features' half resolution and upsampled to the label maps.
   train/.venv/bin/python train/train_semantic.py --train train/data/train --val train/data/val \\
       --minutes 45 --out train/runs/semantic
 
+`--init models/semantic-mini.onnx` continues from an exported model (weights recovered from the ONNX
+file, gf.recover; the logit scale, which the export drops, fitted to the first batches' loss).
+
 Val metrics (`evaluate`): pixel accuracy and mIoU (classes present) with the class-name vocabulary;
 the same with synonyms the model never trained on (`garbage can` for trash bin, `couch`, `fridge`,
 ...) swapped in; and instance accuracy: the masked-mean prototype of each ground-truth instance
@@ -28,6 +31,7 @@ from torch.nn import functional as F
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from gf.data import SimDataset  # noqa: E402
 from gf.model import cpu_session, parameter_count  # noqa: E402
+from gf.recover import recovered_semantic  # noqa: E402
 from gf.semantic import SemanticMini, TextEncoder, label_set  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -50,6 +54,51 @@ def class_weights(dataset, classes, power, windows=300):
     weights = np.ones(classes)
     weights[present] = (np.median(frequency[present]) / frequency[present]) ** power
     return torch.from_numpy(weights).float()
+
+
+def fitted_logit_scale(model, loader, names_text, descriptions_text, weights, batches=8):
+    """The scale (on a log grid up to the training clamp, 100) whose training loss is lowest on
+    the first `batches` batches: a recovered model's features were trained against a scale the
+    export does not keep, and restarting from the initial 14 would first undo their sharpness."""
+    model.eval()
+    losses = {}
+    grid = np.exp(np.linspace(np.log(5.0), np.log(100.0), 16))
+    with torch.no_grad():
+        for i, batch in enumerate(loader):
+            if i >= batches:
+                break
+            images, classes = views_of(batch)
+            features = model(images)
+            for scale in grid:
+                size = classes.shape[-2:]
+                loss = 0.5 * (F.cross_entropy(logits(features, names_text, scale, size), classes, weight=weights)
+                              + F.cross_entropy(logits(features, descriptions_text, scale, size), classes,
+                                                weight=weights))
+                losses[scale] = losses.get(scale, 0.0) + loss.item()
+    return float(min(losses, key=losses.get))
+
+
+def instance_loss(features, instance, classes, text, scale, weights, windows):
+    """Cross-entropy of each ground-truth instance's prototype as the node pools it (the masked mean
+    of a window's features over the instance's pixels, sampled at the feature pixels' centres,
+    ℓ2-normalised) against `text`, weighted like the pixels: the node names an instance by its
+    prototype, so this trains the decision it makes rather than each pixel's."""
+    n, d, h, w = features.shape
+    views = n // windows
+    stride_y, stride_x = instance.shape[-2] // h, instance.shape[-1] // w
+    at_centres = (slice(None), slice(stride_y // 2, None, stride_y), slice(stride_x // 2, None, stride_x))
+    ids, labels = instance[at_centres], classes[at_centres]
+    prototypes, truth = [], []
+    for window in range(windows):
+        views_of_window = slice(window * views, (window + 1) * views)
+        flat = features[views_of_window].permute(0, 2, 3, 1).reshape(-1, d)
+        own, inverse = torch.unique(ids[views_of_window].reshape(-1), return_inverse=True)
+        masks = F.one_hot(inverse, len(own)).float()  # pixels x instances
+        prototypes.append(F.normalize(masks.T @ flat, dim=1))
+        window_labels = labels[views_of_window].reshape(-1)
+        truth.append(torch.stack([window_labels[inverse == k].mode().values for k in range(len(own))]))
+    prototypes, truth = torch.cat(prototypes), torch.cat(truth)
+    return F.cross_entropy(scale * prototypes @ text.T, truth, weight=weights)
 
 
 def logits(features, text, scale, size):
@@ -155,6 +204,11 @@ def main():
     parser.add_argument('--seed', type=int, default=0)
     parser.add_argument('--class-weight-power', type=float, default=0.5,
                         help='class weights are (median frequency / frequency)^power: 0 = none, 1 = full balance')
+    parser.add_argument('--instance-weight', type=float, default=0.0,
+                        help='weight of a loss on the instances\' pooled prototypes (names and descriptions), '
+                             'beside the per-pixel loss; 0 = the per-pixel recipe')
+    parser.add_argument('--init', default=None, metavar='MODEL',
+                        help='start from these weights (a train_semantic.py model.pt, or an exported models/<name>.onnx)')
     parser.add_argument('--out', default=None)
     parser.add_argument('--report', default=None, metavar='MODEL',
                         help='only score MODEL (model.pt, or the exported .onnx) on the val windows held out from '
@@ -176,6 +230,15 @@ def main():
     weights = class_weights(train, len(names), args.class_weight_power)
     selection = range(max(0, len(val) - args.val_windows), len(val))
     model = SemanticMini()
+    if args.init:
+        if str(args.init).endswith('.onnx'):
+            model = recovered_semantic(args.init)
+            fit_loader = torch.utils.data.DataLoader(train, batch_size=args.batch, shuffle=False)
+            scale = fitted_logit_scale(model, fit_loader, names_text, descriptions_text, weights)
+            model.logit_scale.data.fill_(float(np.log(scale)))
+            print(f'recovered {args.init}; logit scale fitted to {scale:.1f}', flush=True)
+        else:
+            model.load_state_dict(torch.load(args.init))
     device = torch.device(args.device)
     model.to(device)
     names_on_device, descriptions_on_device, weights_on_device = (
@@ -204,8 +267,9 @@ def main():
                 group['lr'] = args.lr * (0.1 + 0.9 * 0.5 * (1 + np.cos(np.pi * progress)))
             model.train()
             images, classes = (tensor.to(device) for tensor in views_of(batch))
+            instances = batch['instance'].flatten(0, 1).to(device)
             if torch.rand(()) < 0.5:  # left-right mirror: classes do not depend on handedness
-                images, classes = images.flip(-1), classes.flip(-1)
+                images, classes, instances = images.flip(-1), classes.flip(-1), instances.flip(-1)
             features = model(images)
             scale = model.logit_scale.exp().clamp(max=100.0)
             size = classes.shape[-2:]
@@ -214,6 +278,10 @@ def main():
             description_loss = F.cross_entropy(logits(features, descriptions_on_device, scale, size), classes,
                                                weight=weights_on_device)
             loss = 0.5 * (name_loss + description_loss)
+            if args.instance_weight > 0:
+                pooled = sum(instance_loss(features, instances, classes, text, scale, weights_on_device,
+                                           args.batch) for text in (names_on_device, descriptions_on_device))
+                loss = loss + args.instance_weight * 0.5 * pooled
             optimizer.zero_grad()
             loss.backward()
             torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
@@ -242,7 +310,7 @@ def main():
         torch.save(on_cpu.state_dict(), out / 'model.pt')
     summary = {'steps': step, 'minutes': (time.perf_counter() - started) / 60, 'threads': args.threads,
                'device': args.device, 'train_effects': train.manifest.get('effects'),
-               'train_windows': len(train), 'labels': names, 'best': best, 'final': metrics,
+               'train_windows': len(train), 'labels': names, 'init': args.init, 'best': best, 'final': metrics,
                'parameters': parameter_count(model), 'args': vars(args)}
     (out / 'summary.json').write_text(json.dumps(summary, indent=2))
     log.close()

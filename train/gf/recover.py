@@ -31,16 +31,57 @@ def recovered_model(path, mode, guided=None):
     """GroupForwardMini with the weights of the ONNX file `path` (its room shift included), in eval mode.
     The exporter folds the guided upsampling's widths into constants: a model exported with it is
     recovered with `guided` = (σ_points, σ_colour), which the output parity then checks."""
-    graph = onnx.load(str(path)).graph
-    initializers = {t.name: numpy_helper.to_array(t) for t in graph.initializer}
-    state = {name[len('model.'):]: torch.from_numpy(value.copy())
-             for name, value in initializers.items() if name.startswith('model.')}
+    initializers = _initializers(path)
+    named = {name[len('model.'):]: value for name, value in initializers.items() if name.startswith('model.')}
     # Only the renamed initializers are missing, and none of them decides the architecture.
-    model = GroupForwardMini.for_parameter_names(state, mode)
+    model = GroupForwardMini.for_parameter_names(
+        {name: torch.from_numpy(value.copy()) for name, value in named.items()}, mode)
+    state = recovered_state(path, initializers, named, model.state_dict())
+    if guided is not None and 'instance_guide_sigmas' not in state:
+        model.enable_guided_upsampling(*guided)
+        state['instance_guide_sigmas'] = model.instance_guide_sigmas
+    model.load_state_dict(state)
+    model.eval()
+    check_parity(model, path)
+    return model
+
+
+def recovered_semantic(path):
+    """SemanticMini with the weights of the exported semantic model `path`, in eval mode. Its
+    `logit_scale` is a training-only parameter the export drops: it keeps its initial value, for
+    the caller to fit (train_semantic.py --init)."""
+    from .semantic import SemanticMini
+    initializers = _initializers(path)
+    model = SemanticMini()
     expected = model.state_dict()
-    for name, value in state.items():
-        state[name] = _without_padding(name, value, expected.get(name))
-    missing = [k for k in expected if k not in state]
+    named = {name: value for name, value in initializers.items() if name in expected}
+    state = recovered_state(path, initializers, named, expected, training_only=('logit_scale',))
+    state['logit_scale'] = expected['logit_scale']
+    model.load_state_dict(state)
+    model.eval()
+    session = cpu_session(path)
+    feed = {'image': torch.rand(1, 3, 96, 128, generator=torch.Generator().manual_seed(0))}
+    with torch.no_grad():
+        expected_out = model(feed['image']).numpy()
+    (got,) = session.run(['features'], {'image': feed['image'].numpy()})
+    worst = float(np.abs(expected_out - got).max()) / max(1.0, float(np.abs(expected_out).max()))
+    if worst > PARITY:
+        raise RecoveryError(f'{path}: the recovered outputs differ by {worst:.1e} of their scale')
+    return model
+
+
+def _initializers(path):
+    graph = onnx.load(str(path)).graph
+    return {t.name: numpy_helper.to_array(t) for t in graph.initializer}
+
+
+def recovered_state(path, initializers, named, expected, training_only=()):
+    """A state dict for the parameters `expected`: those the exporter kept under their own names
+    (`named`, zero input-channel padding cut), and the renamed GroupNorm affines and Linear
+    weights matched in order to the missing ones, checked by shape."""
+    state = {name: _without_padding(name, torch.from_numpy(value.copy()), expected.get(name))
+             for name, value in named.items()}
+    missing = [k for k in expected if k not in state and k not in training_only]
     renamed = sorted((k for k in initializers if k.startswith('onnx::')), key=_number)
     matrices = [k for k in renamed if k.startswith('onnx::MatMul')]
     # Scalar constants the exporter also renames (`onnx::Pow_*` of the guided upsampling) are not parameters.
@@ -53,14 +94,8 @@ def recovered_model(path, mode, guided=None):
             [(k, s, initializers[s].T) for k, s in zip(linears, matrices)]:
         if value.shape != expected[name].shape:
             raise RecoveryError(f'{path}: {source} {value.shape} does not fit {name} {tuple(expected[name].shape)}')
-        state[name] = torch.from_numpy(np.ascontiguousarray(value))
-    if guided is not None and 'instance_guide_sigmas' not in state:
-        model.enable_guided_upsampling(*guided)
-        state['instance_guide_sigmas'] = model.instance_guide_sigmas
-    model.load_state_dict(state)
-    model.eval()
-    check_parity(model, path)
-    return model
+        state[name] = torch.from_numpy(np.array(value, copy=True))
+    return state
 
 
 def _without_padding(name, value, expected):
