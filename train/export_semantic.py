@@ -17,6 +17,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from gf.cpu_graph import rewrite_file_for_cpu  # noqa: E402
+from export_recon import run_origin  # noqa: E402
 from gf.model import parameter_count  # noqa: E402
 from gf.semantic import FEATURE_DIM, SemanticMini  # noqa: E402
 
@@ -55,10 +56,18 @@ def main():
     size = onnx_path.stat().st_size
     # Runs before these fields: no effects, on the CPU.
     drawn = summary.get('train_effects')
+    drawn = [drawn] if isinstance(drawn, str) else drawn
     effects = f'; sim effects {" + ".join(drawn)} (sim dataset --effects)' if drawn and drawn != ['clean'] else ''
     device = summary.get('device', 'cpu')
     trained_on = (f"on {summary['threads']} CPU thread(s)" if device == 'cpu'
                   else f"on a lent GPU ({device}, {summary['threads']} CPU threads for the data)")
+    # A run continued from an exported model (train_semantic.py --init) names that model's training
+    # first, so this run's steps are not read as the whole; and the loss when it is not the recipe's.
+    origin = run_origin(summary.get('args', {}))
+    if origin != 'trained from scratch':
+        origin += '; this run'
+    if summary.get('args', {}).get('instance_weight'):
+        origin += f" with the instances' pooled prototypes in the loss (weight {summary['args']['instance_weight']:g})"
     rewritten = f'; graph rewritten for the CPU runtime ({rewrite})' if rewrite else ''
     manifest = f'''# Semantic-mini (the LSeg role), trained here on the simulator by train/train_semantic.py. Not a
 # pretrained model: {parameter_count(model) / 1e6:.2f} M parameters, 16 object classes of small synthetic rooms
@@ -69,7 +78,7 @@ file = "{args.name}.onnx"
 input_height = {height}
 input_width = {width}
 embedding_dim = {FEATURE_DIM}
-provenance = "trained from scratch on groupforward-sim train split ({summary['train_windows']} windows x 4 views, 128x96{effects}) against the int8 all-MiniLM-L6-v2 embeddings of class names and descriptions; checkpoint of step {best['step']} ({best['minutes']:.0f} min) of a {summary['steps']}-step, {summary['minutes']:.0f}-min run {trained_on}, picked by mIoU on {best['windows']} val windows; benchmarks below on {report['windows']} other val windows; ONNX parity {worst:.1e}{rewritten}; {size / 1e6:.1f} MB"
+provenance = "{origin} on groupforward-sim train split ({summary['train_windows']} windows x 4 views, 128x96{effects}) against the int8 all-MiniLM-L6-v2 embeddings of class names and descriptions; checkpoint of step {best['step']} ({best['minutes']:.0f} min) of a {summary['steps']}-step, {summary['minutes']:.0f}-min run {trained_on}, picked by mIoU on {best['windows']} val windows; benchmarks below on {report['windows']} other val windows; ONNX parity {worst:.1e}{rewritten}; {size / 1e6:.1f} MB"
 license = "Apache-2.0"
 
 [normalization]

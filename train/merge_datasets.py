@@ -13,12 +13,14 @@ SHARED = ('format', 'version', 'views', 'width', 'height', 'fov_x_deg', 'depth_s
 
 def merge(out, parts):
     os.makedirs(out, exist_ok=True)
-    manifest, scenes, splits = None, [], []
+    manifest, scenes, splits, effects = None, [], [], []
     for part in parts:
         m = json.load(open(os.path.join(part, 'dataset.json')))
         if m['split'] not in TRAINING_SPLITS:
             raise SystemExit(f'{part}: split {m["split"]!r} is no training split ({", ".join(TRAINING_SPLITS)})')
         splits.append(m['split'])
+        if m.get('effects', 'clean') not in effects:
+            effects.append(m.get('effects', 'clean'))
         if manifest is None:
             manifest = dict(m)
         elif any(m[k] != manifest[k] for k in SHARED):
@@ -29,7 +31,9 @@ def merge(out, parts):
                 os.symlink(os.path.abspath(os.path.join(part, scene)), link)
             scenes.append(scene)
     # The parts' own splits, for the provenance of a model trained on the merge (train_recon.py).
-    manifest.update(split='train', scenes=scenes, samples=len(scenes), merged_from=list(parts), merged_splits=splits)
+    # Each part's sensor effects, so a model trained on a clean and a `realistic` part says both.
+    manifest.update(split='train', scenes=scenes, samples=len(scenes), merged_from=list(parts), merged_splits=splits,
+                    effects=effects[0] if len(effects) == 1 else effects)
     with open(os.path.join(out, 'dataset.json'), 'w') as f:
         json.dump(manifest, f, indent=1)
     return len(scenes)
