@@ -68,6 +68,7 @@ def main():
         origin += '; this run'
     if summary.get('args', {}).get('instance_weight'):
         origin += f" with the instances' pooled prototypes in the loss (weight {summary['args']['instance_weight']:g})"
+    picked_by = {'miou': 'mIoU', 'instance_accuracy': 'instances named'}[summary.get('args', {}).get('select', 'miou')]
     rewritten = f'; graph rewritten for the CPU runtime ({rewrite})' if rewrite else ''
     manifest = f'''# Semantic-mini (the LSeg role), trained here on the simulator by train/train_semantic.py. Not a
 # pretrained model: {parameter_count(model) / 1e6:.2f} M parameters, 16 object classes of small synthetic rooms
@@ -78,7 +79,7 @@ file = "{args.name}.onnx"
 input_height = {height}
 input_width = {width}
 embedding_dim = {FEATURE_DIM}
-provenance = "{origin} on groupforward-sim train split ({summary['train_windows']} windows x 4 views, 128x96{effects}) against the int8 all-MiniLM-L6-v2 embeddings of class names and descriptions; checkpoint of step {best['step']} ({best['minutes']:.0f} min) of a {summary['steps']}-step, {summary['minutes']:.0f}-min run {trained_on}, picked by mIoU on {best['windows']} val windows; benchmarks below on {report['windows']} other val windows; ONNX parity {worst:.1e}{rewritten}; {size / 1e6:.1f} MB"
+provenance = "{origin} on groupforward-sim train split ({summary['train_windows']} windows x 4 views, 128x96{effects}) against the int8 all-MiniLM-L6-v2 embeddings of class names and descriptions; checkpoint of step {best['step']} ({best['minutes']:.0f} min) of a {summary['steps']}-step, {summary['minutes']:.0f}-min run {trained_on}, picked by {picked_by} on {best['windows']} val windows; benchmarks below on {report['windows']} other val windows; ONNX parity {worst:.1e}{rewritten}; {size / 1e6:.1f} MB"
 license = "Apache-2.0"
 
 [normalization]

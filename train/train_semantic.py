@@ -207,6 +207,9 @@ def main():
     parser.add_argument('--instance-weight', type=float, default=0.0,
                         help='weight of a loss on the instances\' pooled prototypes (names and descriptions), '
                              'beside the per-pixel loss; 0 = the per-pixel recipe')
+    parser.add_argument('--select', choices=('miou', 'instance_accuracy'), default='miou',
+                        help='the val metric that picks the checkpoint: pixel mIoU, or instances named as the node '
+                             'names them (a run with --instance-weight trades the first for the second)')
     parser.add_argument('--init', default=None, metavar='MODEL',
                         help='start from these weights (a train_semantic.py model.pt, or an exported models/<name>.onnx)')
     parser.add_argument('--out', default=None)
@@ -250,7 +253,7 @@ def main():
     budget = args.minutes * 60.0
     started = time.perf_counter()
     last_eval = started
-    best = {'miou': -1.0}
+    best = {args.select: -1.0}
     step = 0
     log = open(out / 'log.csv', 'w')
     log.write('step,seconds,loss,name_loss,description_loss\n')
@@ -299,13 +302,13 @@ def main():
                 on_cpu = copy.deepcopy(model).cpu()
                 metrics = evaluate(on_cpu, val, names, names_text, synonyms_text, selection)
                 print(f'  val: {metrics}', flush=True)
-                if metrics['miou'] > best['miou']:
+                if metrics[args.select] > best[args.select]:
                     best = dict(metrics, step=step, minutes=elapsed / 60)
                     torch.save(on_cpu.state_dict(), out / 'model.pt')
     on_cpu = copy.deepcopy(model).cpu()
     metrics = evaluate(on_cpu, val, names, names_text, synonyms_text, selection)
     print(f'final val: {metrics}', flush=True)
-    if metrics['miou'] > best['miou']:
+    if metrics[args.select] > best[args.select]:
         best = dict(metrics, step=step, minutes=(time.perf_counter() - started) / 60)
         torch.save(on_cpu.state_dict(), out / 'model.pt')
     summary = {'steps': step, 'minutes': (time.perf_counter() - started) / 60, 'threads': args.threads,
