@@ -70,12 +70,17 @@ def fitted_logit_scale(model, loader, names_text, descriptions_text, weights, ba
             images, classes = views_of(batch)
             features = model(images)
             for scale in grid:
-                size = classes.shape[-2:]
-                loss = 0.5 * (F.cross_entropy(logits(features, names_text, scale, size), classes, weight=weights)
-                              + F.cross_entropy(logits(features, descriptions_text, scale, size), classes,
-                                                weight=weights))
+                loss = pixel_loss(features, classes, (names_text, descriptions_text), scale, weights)[0]
                 losses[scale] = losses.get(scale, 0.0) + loss.item()
     return float(min(losses, key=losses.get))
+
+
+def pixel_loss(features, classes, texts, scale, weights):
+    """The recipe's loss: the mean over `texts` (names, descriptions) of the per-pixel weighted
+    cross-entropy, with each text's own term."""
+    size = classes.shape[-2:]
+    terms = [F.cross_entropy(logits(features, text, scale, size), classes, weight=weights) for text in texts]
+    return sum(terms) / len(terms), terms
 
 
 def instance_loss(features, instance, classes, text, scale, weights, windows):
@@ -275,12 +280,8 @@ def main():
                 images, classes, instances = images.flip(-1), classes.flip(-1), instances.flip(-1)
             features = model(images)
             scale = model.logit_scale.exp().clamp(max=100.0)
-            size = classes.shape[-2:]
-            name_loss = F.cross_entropy(logits(features, names_on_device, scale, size), classes,
-                                        weight=weights_on_device)
-            description_loss = F.cross_entropy(logits(features, descriptions_on_device, scale, size), classes,
-                                               weight=weights_on_device)
-            loss = 0.5 * (name_loss + description_loss)
+            loss, (name_loss, description_loss) = pixel_loss(
+                features, classes, (names_on_device, descriptions_on_device), scale, weights_on_device)
             if args.instance_weight > 0:
                 pooled = sum(instance_loss(features, instances, classes, text, scale, weights_on_device,
                                            args.batch) for text in (names_on_device, descriptions_on_device))
@@ -313,7 +314,7 @@ def main():
         torch.save(on_cpu.state_dict(), out / 'model.pt')
     summary = {'steps': step, 'minutes': (time.perf_counter() - started) / 60, 'threads': args.threads,
                'device': args.device, 'train_effects': train.manifest.get('effects'),
-               'train_windows': len(train), 'labels': names, 'init': args.init, 'best': best, 'final': metrics,
+               'train_windows': len(train), 'labels': names, 'best': best, 'final': metrics,
                'parameters': parameter_count(model), 'args': vars(args)}
     (out / 'summary.json').write_text(json.dumps(summary, indent=2))
     log.close()

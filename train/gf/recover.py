@@ -59,12 +59,8 @@ def recovered_semantic(path):
     state['logit_scale'] = expected['logit_scale']
     model.load_state_dict(state)
     model.eval()
-    session = cpu_session(path)
     feed = {'image': torch.rand(1, 3, 96, 128, generator=torch.Generator().manual_seed(0))}
-    with torch.no_grad():
-        expected_out = model(feed['image']).numpy()
-    (got,) = session.run(['features'], {'image': feed['image'].numpy()})
-    worst = float(np.abs(expected_out - got).max()) / max(1.0, float(np.abs(expected_out).max()))
+    worst = onnx_parity(model, cpu_session(path), feed, outputs=('features',))
     if worst > PARITY:
         raise RecoveryError(f'{path}: the recovered outputs differ by {worst:.1e} of their scale')
     return model
