@@ -57,6 +57,15 @@ pub const MIN_LISTED_GAUSSIANS: usize = 60;
 pub const CONFIDENT_NAME: f32 = 0.7;
 pub const MIN_SMALL_SIGHTINGS: u32 = 2;
 
+/// A small instance seen by one window is listed at once when its best name scores at least
+/// this: what the features name this surely is that object, not a fragment (a lamp on a table,
+/// a box on a shelf, that no other window saw). Listing every small instance seen once at
+/// [`CONFIDENT_NAME`] found 2.2 / 5.6 points more objects on benchmark 14400-14419 / 14800-14819
+/// but cost 5.5 / 6.4 points of precision: the pieces it added (a chair's or a table's leg, part
+/// of a plant) were named 0.70-0.93, the objects (lamps, boxes, pillows) 0.96-0.996. Chosen on
+/// those two ranges' `instances.csv` (0.9: 14 objects, 9 pieces; 0.95: 13 and 3).
+pub const SURE_NAME: f32 = 0.95;
+
 /// A small instance the object list holds back (seen by one window, or named less surely than
 /// [`CONFIDENT_NAME`]) whose best name scores at least this is a tentative candidate for queries
 /// ([`Vocabulary::is_tentative`]): a lamp on a table that one window grouped and named and no other
@@ -301,8 +310,8 @@ fn renormalised(p: Vec<f32>, keep: impl Fn(usize) -> bool) -> Vec<f32> {
 impl Vocabulary {
     /// Where an instance with `prototype`, `gaussians` Gaussians and seen by `sightings` windows
     /// stands: in the object list when not structure (walls, floor, ceiling: the semantic model's
-    /// `other` class, which stays in the map) and either large enough or confidently named and
-    /// seen again ([`MIN_LISTED_GAUSSIANS`]); else a tentative candidate for queries when not
+    /// `other` class, which stays in the map) and either large enough, confidently named and
+    /// seen again ([`MIN_LISTED_GAUSSIANS`]), or surely named ([`SURE_NAME`]); else a tentative candidate for queries when not
     /// structure and named at least [`TENTATIVE_NAME`]. Names it once (a cosine with every phrase).
     pub fn standing(&self, prototype: &[f32], gaussians: usize, sightings: u32) -> Standing {
         let Some((phrase, score)) = self.hypotheses(prototype, 1).pop() else {
@@ -312,6 +321,7 @@ impl Vocabulary {
             Standing::Left
         } else if gaussians >= MIN_LISTED_GAUSSIANS
             || (score >= CONFIDENT_NAME && sightings >= MIN_SMALL_SIGHTINGS)
+            || score >= SURE_NAME
         {
             Standing::Listed
         } else if score >= TENTATIVE_NAME {
