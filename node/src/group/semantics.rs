@@ -310,9 +310,10 @@ fn renormalised(p: Vec<f32>, keep: impl Fn(usize) -> bool) -> Vec<f32> {
 impl Vocabulary {
     /// Where an instance with `prototype`, `gaussians` Gaussians and seen by `sightings` windows
     /// stands: in the object list when not structure (walls, floor, ceiling: the semantic model's
-    /// `other` class, which stays in the map) and either large enough, confidently named and
-    /// seen again ([`MIN_LISTED_GAUSSIANS`]), or surely named ([`SURE_NAME`]); else a tentative candidate for queries when not
-    /// structure and named at least [`TENTATIVE_NAME`]. Names it once (a cosine with every phrase).
+    /// `other` class, which stays in the map) and large enough ([`MIN_LISTED_GAUSSIANS`]),
+    /// confidently named and seen again, or surely named ([`SURE_NAME`]); else a tentative
+    /// candidate for queries when not structure and named at least [`TENTATIVE_NAME`]. Names it
+    /// once (a cosine with every phrase).
     pub fn standing(&self, prototype: &[f32], gaussians: usize, sightings: u32) -> Standing {
         let Some((phrase, score)) = self.hypotheses(prototype, 1).pop() else {
             return Standing::Listed;
