@@ -24,6 +24,19 @@ from gf.semantic import FEATURE_DIM, SemanticMini  # noqa: E402
 MODELS = Path(__file__).resolve().parents[1] / 'models'
 
 
+def how_trained(run_args):
+    """(where the weights came from, what picked the checkpoint) of a train_semantic.py run's args: a run
+    continued from an exported model (--init) names that model's training first, so this run's steps are not
+    read as the whole; and the loss when it is not the recipe's."""
+    origin = run_origin(run_args)
+    if origin != 'trained from scratch':
+        origin += '; this run'
+    if run_args.get('instance_weight'):
+        origin += f" with the instances' pooled prototypes in the loss (weight {run_args['instance_weight']:g})"
+    picked_by = {'miou': 'mIoU', 'instance_accuracy': 'instances named'}[run_args.get('select', 'miou')]
+    return origin, picked_by
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument('--model', required=True)
@@ -61,14 +74,7 @@ def main():
     device = summary.get('device', 'cpu')
     trained_on = (f"on {summary['threads']} CPU thread(s)" if device == 'cpu'
                   else f"on a lent GPU ({device}, {summary['threads']} CPU threads for the data)")
-    # A run continued from an exported model (train_semantic.py --init) names that model's training
-    # first, so this run's steps are not read as the whole; and the loss when it is not the recipe's.
-    origin = run_origin(summary.get('args', {}))
-    if origin != 'trained from scratch':
-        origin += '; this run'
-    if summary.get('args', {}).get('instance_weight'):
-        origin += f" with the instances' pooled prototypes in the loss (weight {summary['args']['instance_weight']:g})"
-    picked_by = {'miou': 'mIoU', 'instance_accuracy': 'instances named'}[summary.get('args', {}).get('select', 'miou')]
+    origin, picked_by = how_trained(summary.get('args', {}))
     rewritten = f'; graph rewritten for the CPU runtime ({rewrite})' if rewrite else ''
     manifest = f'''# Semantic-mini (the LSeg role), trained here on the simulator by train/train_semantic.py. Not a
 # pretrained model: {parameter_count(model) / 1e6:.2f} M parameters, 16 object classes of small synthetic rooms

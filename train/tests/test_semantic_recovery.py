@@ -67,3 +67,15 @@ def test_the_instance_loss_scores_pooled_prototypes_against_their_instances_clas
     good = train_semantic.instance_loss(noisy, instance, classes, text, 20.0, weights, windows=2)
     swapped = train_semantic.instance_loss(noisy, instance, 2 - classes, text, 20.0, weights, windows=2)
     assert torch.isfinite(good) and good < 0.1 < swapped
+
+
+def test_a_continued_run_names_the_model_it_started_from_its_loss_and_what_picked_it(tmp_path):
+    from export_semantic import how_trained
+    assert how_trained({}) == ('trained from scratch', 'mIoU')
+    start = tmp_path / 'start.onnx'
+    start.write_bytes(b'')
+    (tmp_path / 'start.toml').write_text('provenance = "trained from scratch on the sim; benchmarks below on 76"\n')
+    origin, picked_by = how_trained({'init': str(start), 'instance_weight': 1.0, 'select': 'instance_accuracy'})
+    assert origin == ("fine-tuned from an exported model (trained from scratch on the sim); this run with "
+                      "the instances' pooled prototypes in the loss (weight 1)")
+    assert picked_by == 'instances named'
