@@ -26,7 +26,7 @@ fn each_dropped_point_keeps_the_first_stage_that_dropped_it() {
     assert_eq!(Unassigned::of_code(-7), None);
 }
 
-/// A frame `x` metres along the track at `secs` (a keyframe every 0.2 m).
+/// A frame `x` metres along the track at `secs` (a keyframe every 0.14 m).
 fn frame_at(x: f64, secs: f64) -> SyncedFrame {
     SyncedFrame {
         camera_name: "front".into(),
@@ -79,6 +79,27 @@ fn keyframes_short_of_a_window_when_the_stream_ends_form_one_with_the_newest() {
         "the newest four, two of them already in the last window"
     );
     assert_eq!(store.take_pending_window(), None, "taken once");
+}
+
+#[test]
+fn a_camera_turning_sixty_degrees_a_second_keeps_every_other_frame() {
+    // A walk that looks around turns this fast (the simulator's heading changes 6 degrees a frame
+    // at 10 Hz, one standard deviation). At 15 degrees a keyframe (the old default) two frames in
+    // three were skipped, and what the camera glimpsed only in them was never mapped.
+    let mut store = Keyframes::new(WindowSection {
+        exposure_compensation: false,
+        ..WindowSection::default()
+    });
+    let kept: Vec<bool> = (0..12)
+        .map(|k| {
+            let mut frame = frame_at(0.0, 0.1 * f64::from(k));
+            frame.world_from_camera.rotation =
+                glam::DQuat::from_rotation_z(f64::from(6 * k).to_radians());
+            store.offer(&frame)
+        })
+        .collect();
+    let every_other: Vec<bool> = (0..12).map(|k| k % 2 == 0).collect();
+    assert_eq!(kept, every_other);
 }
 
 #[test]
