@@ -57,8 +57,8 @@ pub fn object_list<'a>(
 
 /// [`object_list`] with the tentative candidates queries may also answer
 /// ([`Vocabulary::is_tentative`]: small pieces the list holds back, seen by one window or named
-/// unsurely, whose best name scores at least [`crate::group::semantics::TENTATIVE_NAME`]),
-/// marked [`Listed::tentative`].
+/// unsurely, whose best name scores at least [`crate::group::semantics::TENTATIVE_NAME`], and no
+/// small piece of what their name names: [`is_small_piece`]), marked [`Listed::tentative`].
 pub fn object_list_with_tentative<'a>(
     map: &'a SceneMap,
     vocabulary: Option<&Vocabulary>,
@@ -117,7 +117,7 @@ fn list<'a>(
                 .map(|(name, _)| name);
             let name = name.as_deref();
             if is_small_piece(i, name, size, priors) {
-                tracing::debug!(instance = %i.id, length = size.length_m, "not listed: a small piece of what its name names");
+                tracing::debug!(instance = %i.id, length = size.length_m, "not listed: a small piece");
                 return None;
             }
             let box_like = name.is_some_and(|n| priors.typical_depth(n).is_some());
@@ -161,8 +161,8 @@ fn list<'a>(
 
 /// Whether `instance` is a small piece of what its `name` names: fewer Gaussians than
 /// [`MIN_LISTED_GAUSSIANS`] and a `size` no object of the name has ([`ClassPriors::admits_size`]:
-/// a table's leg named table, a 9 cm sliver named chair), so not listed, however often seen or
-/// surely named; a name without priors admits any size. Read on benchmark 15200-15219 and layouts
+/// a table's leg named table, a 9 cm sliver named chair), so neither listed, however often seen or
+/// surely named, nor a tentative candidate for queries; a name without priors admits any size. Read on benchmark 15200-15219 and layouts
 /// 920-939 (precision +1.4 and +0.5 points), fresh on 15400-15419 and layouts 940-959 (+1.6 and
 /// +0.7): none of the 8 instances it left out was an object.
 fn is_small_piece(
