@@ -155,7 +155,7 @@ fn dropout_bench(
     out: &Path,
 ) -> Result<()> {
     use groupforward_sim::effects::Preset;
-    let config = crate::eval::eval_config(&crate::eval_command::ModelArgs::reconstruction(model));
+    let config = crate::eval::eval_config(&crate::eval_command::ModelArgs::reconstruction(model))?;
     let mut models = groupforward::window::WindowModels::load(&config.models, &config.semantics)
         .context("loading the models (`make setup` installs ONNX Runtime)")?;
     if let Some(dir) = out.parent() {

@@ -30,7 +30,7 @@ pub fn outputs_bench(
         std::fs::create_dir_all(parent)?;
     }
     // The denominator: window passes of the demo scene, model to map update.
-    let config = crate::eval::eval_config(&crate::eval_command::ModelArgs::default());
+    let config = crate::eval::eval_config(&crate::eval_command::ModelArgs::default())?;
     groupforward::model::init_runtime(config.models.onnxruntime.as_deref())?;
     let mut models = groupforward::window::WindowModels::load(&config.models, &config.semantics)?;
     let scene = groupforward_sim::scene::SceneFile::builtin("two_chairs")

@@ -36,7 +36,7 @@ pub fn refer_bench(sizes: &[usize], rounds: usize, out: &Path) -> Result<()> {
     if let Some(parent) = out.parent() {
         std::fs::create_dir_all(parent)?;
     }
-    let config = crate::eval::eval_config(&crate::eval_command::ModelArgs::default());
+    let config = crate::eval::eval_config(&crate::eval_command::ModelArgs::default())?;
     groupforward::model::init_runtime(config.models.onnxruntime.as_deref())?;
     let mut encoder = TextEncoder::load(
         &config.models.text_encoder,

@@ -182,7 +182,7 @@ pub fn sweep(
     for (round, (index, setting)) in runs {
         let mut config = eval_config(&ModelArgs::reconstruction(Some(
             shipped_models().join(setting.model),
-        )));
+        )))?;
         config.window.views = setting.views;
         config.window.features_ahead = setting.features_ahead;
         config.models.intra_op_spinning = setting.spinning;

@@ -69,11 +69,15 @@ pub fn split_scenes(split: &str, first_index: u64, count: u64) -> Result<Vec<Sce
         .collect()
 }
 
-/// The node's default config with the shipped models, or the ones `models` names instead.
-pub fn eval_config(models: &ModelArgs) -> Config {
-    let mut config = Config {
-        models: ModelsSection::shipped_in(&shipped_models()),
-        ..Config::default()
+/// The node's default config with the shipped models, or the config file `models` names; with
+/// the models it names instead. A config file with a mistake is an error naming it.
+pub fn eval_config(models: &ModelArgs) -> Result<Config> {
+    let mut config = match &models.config {
+        Some(path) => Config::load(path)?,
+        None => Config {
+            models: ModelsSection::shipped_in(&shipped_models()),
+            ..Config::default()
+        },
     };
     if let Some(model) = &models.model {
         config.models.reconstruction = Some(model.clone());
@@ -81,7 +85,7 @@ pub fn eval_config(models: &ModelArgs) -> Config {
     if let Some(semantic) = &models.semantic_model {
         config.models.semantic = Some(semantic.clone());
     }
-    config
+    Ok(config)
 }
 
 pub fn shipped_models() -> PathBuf {
@@ -228,7 +232,7 @@ pub fn eval_map(
                 .collect()
         })
         .transpose()?;
-    let config = eval_config(models);
+    let config = eval_config(models)?;
     let mut window_models = WindowModels::load(&config.models, &config.semantics)
         .context("loading the models (`make setup` installs ONNX Runtime)")?;
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
@@ -378,6 +382,7 @@ pub fn eval_map(
             "semantic_sha256": model_hash(&semantic)?,
         },
         "config": {
+            "file": models.config.as_ref().map(|p| p.display().to_string()),
             "window": config.window,
             "min_object_pixels": MIN_OBJECT_PIXELS,
             "min_window_pixels": MIN_WINDOW_PIXELS,

@@ -24,7 +24,7 @@ pub fn eval_all(
     let shipped = ModelArgs::default();
     eval_window(files, &shipped, windows, &part("window"))?;
     eval_map(files, &shipped, effects, None, &part("map"))?;
-    eval_refer(files, &eval_config(&shipped), None, false, &part("refer"))?;
+    eval_refer(files, &eval_config(&shipped)?, None, false, &part("refer"))?;
     let read = |name: &str| -> Result<Value> {
         let path = part(name).join("summary.json");
         let text = std::fs::read_to_string(&path)

@@ -38,6 +38,12 @@ pub struct ModelArgs {
     /// `train/export_semantic.py`, to be paired with the shipped one through `--against`.
     #[arg(long)]
     pub semantic_model: Option<PathBuf>,
+    /// A node config file (YAML, as `groupforward run --config` reads it) to score instead of the
+    /// built-in defaults: its window, grouping, fusion, semantics and refer settings, and its
+    /// models (paths relative to the working directory), unless `--model` or `--semantic-model`
+    /// name others. Its cameras and transport are not used.
+    #[arg(long)]
+    pub config: Option<PathBuf>,
 }
 
 impl ModelArgs {
@@ -125,14 +131,15 @@ pub enum EvalCommand {
         /// Write every answer's evidence bundle (PNG + JSON) here.
         #[arg(long)]
         evidence: Option<PathBuf>,
-        /// `builtin` (default) or `vlm` (needs `--vlm-endpoint`).
-        #[arg(long, default_value = "builtin")]
-        reasoner: String,
-        /// OpenAI-compatible API base URL for `--reasoner vlm`, e.g. http://localhost:8000/v1.
-        #[arg(long, default_value = "")]
-        vlm_endpoint: String,
-        #[arg(long, default_value = "")]
-        vlm_model: String,
+        /// `builtin` or `vlm` (needs `--vlm-endpoint`); default: the config's (`builtin`).
+        #[arg(long)]
+        reasoner: Option<String>,
+        /// OpenAI-compatible API base URL for `--reasoner vlm`, e.g. http://localhost:8000/v1
+        /// (default: the config's).
+        #[arg(long)]
+        vlm_endpoint: Option<String>,
+        #[arg(long)]
+        vlm_model: Option<String>,
         #[arg(long, default_value = "target/eval/refer")]
         out: PathBuf,
     },
@@ -178,13 +185,20 @@ pub fn run(command: EvalCommand) -> Result<()> {
             out,
         } => {
             let files = scenes.files()?;
-            let mut config = eval_config(&models);
-            config.refer.reasoner = reasoner;
-            config.refer.vlm.endpoint = vlm_endpoint;
-            config.refer.vlm.model = vlm_model;
-            config.refer.evidence_dir = evidence
-                .map(|d| d.display().to_string())
-                .unwrap_or_default();
+            let mut config = eval_config(&models)?;
+            // What the command line names replaces the config's.
+            if let Some(reasoner) = reasoner {
+                config.refer.reasoner = reasoner;
+            }
+            if let Some(endpoint) = vlm_endpoint {
+                config.refer.vlm.endpoint = endpoint;
+            }
+            if let Some(model) = vlm_model {
+                config.refer.vlm.model = model;
+            }
+            if let Some(evidence) = evidence {
+                config.refer.evidence_dir = evidence.display().to_string();
+            }
             crate::eval_refer::eval_refer(&files, &config, expressions.as_deref(), baseline, &out)
         }
     }
@@ -201,16 +215,54 @@ mod tests {
         let config = eval_config(&ModelArgs {
             semantic_model: Some(candidate.clone()),
             ..ModelArgs::default()
-        });
+        })
+        .unwrap();
         assert_eq!(config.models.semantic, Some(candidate));
         assert_eq!(
             config.models.reconstruction,
             Some(shipped_models().join("groupforward-mini-rgbd.toml"))
         );
-        let shipped = eval_config(&ModelArgs::default());
+        let shipped = eval_config(&ModelArgs::default()).unwrap();
         assert_eq!(
             shipped.models.semantic,
             Some(shipped_models().join("semantic-mini.toml"))
         );
+    }
+
+    #[test]
+    fn a_config_file_is_scored_with_its_own_settings_and_models_unless_the_command_names_others() {
+        let dir = tempfile::tempdir().expect("a temporary directory");
+        let path = dir.path().join("robot.yaml");
+        std::fs::write(
+            &path,
+            "window:\n  min_rotation_deg: 5.0\nmodels:\n  semantic: my/semantic.toml\n",
+        )
+        .unwrap();
+        let args = ModelArgs {
+            config: Some(path.clone()),
+            ..ModelArgs::default()
+        };
+        let config = eval_config(&args).unwrap();
+        assert_eq!(config.window.min_rotation_deg, 5.0);
+        assert_eq!(
+            config.models.semantic,
+            Some(PathBuf::from("my/semantic.toml"))
+        );
+        let candidate = PathBuf::from("/tmp/candidate/semantic.toml");
+        let config = eval_config(&ModelArgs {
+            semantic_model: Some(candidate.clone()),
+            ..args
+        })
+        .unwrap();
+        assert_eq!(config.models.semantic, Some(candidate));
+        assert_eq!(config.window.min_rotation_deg, 5.0);
+        // A mistake names the file.
+        std::fs::write(&path, "window:\n  min_rotation_degs: 5.0\n").unwrap();
+        let error = eval_config(&ModelArgs {
+            config: Some(path),
+            ..ModelArgs::default()
+        })
+        .unwrap_err();
+        assert!(format!("{error:#}").contains("robot.yaml"), "{error:#}");
     }
 }

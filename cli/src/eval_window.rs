@@ -62,7 +62,7 @@ pub fn eval_window(
     out: &Path,
 ) -> Result<()> {
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    let config = eval_config(models);
+    let config = eval_config(models)?;
     let views = config.window.views;
     let mut models = WindowModels::load(&config.models, &config.semantics)
         .context("loading the models (`make setup` installs ONNX Runtime)")?;
