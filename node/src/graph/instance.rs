@@ -76,6 +76,11 @@ impl Instance {
         (lo + hi) / 2.0
     }
 
+    /// Whether semantic features ever fell on it: a prototype that is not empty or zero.
+    pub fn is_named(&self) -> bool {
+        self.prototype.iter().any(|&v| v != 0.0)
+    }
+
     /// Its length and height as its points measure them ([`OrientedBox::principal_extent`]).
     pub fn measured_size(&self) -> MeasuredSize {
         let (length_m, height_m) =
