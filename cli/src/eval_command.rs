@@ -28,7 +28,7 @@ pub struct ScenesArgs {
     effects: Option<String>,
 }
 
-/// Which models an evaluation loads (default: the shipped ones).
+/// Which models and settings an evaluation runs (default: the shipped models, the built-in settings).
 #[derive(Debug, Clone, Default, clap::Args)]
 pub struct ModelArgs {
     /// Reconstruction model manifest (default: the shipped RGB-D model).
