@@ -28,7 +28,8 @@ const HEADER: &str = "\
 # the ground-truth boxes of the first 200 rooms of the simulator's `train` split:
 #   typical_depth_m   median shorter horizontal side (classes with a flat face at least 0.15 m
 #                     high, which a camera can see alone); a face seen from one side is completed
-#                     to it
+#                     to it; touching pieces named alike fold only while together they are at
+#                     most 1.5 times as deep
 #   smallest_depth_m  smallest shorter horizontal side (the same classes); a face with a wall
 #                     closer behind it is the object's back; something narrower across than
 #                     0.6 of it is not one of its objects, whatever the semantic features say

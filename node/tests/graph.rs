@@ -1043,6 +1043,15 @@ impl Kinds for SizedKinds {
     }
 }
 
+/// One half (1 m) of a bed 2 m long and 1.4 m across, centred at `x`.
+fn bed_half(x: f32) -> WindowInstance {
+    WindowInstance {
+        gaussians: cuboid(Vec3::new(x, 0.0, 0.25), Vec3::new(0.5, 0.7, 0.25)),
+        prototype: vec![0.0, 1.0, 0.0],
+        support: 400,
+    }
+}
+
 #[test]
 fn two_chairs_side_by_side_stay_two_but_the_halves_of_a_bed_fold() {
     // Two chairs touching, named alike with alike features: fragments by every test but
@@ -1070,17 +1079,74 @@ fn two_chairs_side_by_side_stay_two_but_the_halves_of_a_bed_fold() {
         .unwrap();
     assert_eq!(report.absorbed.len(), 1, "{report:?}");
     // A bed's two halves, 2 m together, are one bed.
-    let half = |x: f32| WindowInstance {
-        gaussians: cuboid(Vec3::new(x, 0.0, 0.25), Vec3::new(0.5, 0.7, 0.25)),
-        prototype: vec![0.0, 1.0, 0.0],
-        support: 400,
-    };
     let mut bed = SceneMap::new(FusionParams::default());
     let report = bed
-        .fuse_named(vec![half(0.0), half(1.02)], &[], 1, SizedKinds)
+        .fuse_named(vec![bed_half(0.0), bed_half(1.02)], &[], 1, SizedKinds)
         .unwrap();
     assert_eq!(report.absorbed.len(), 1, "{report:?}");
     assert_eq!(bed.instances.len(), 1);
+}
+
+/// The default vocabulary's bookshelf (first feature) and bed sizes; their typical depths where
+/// `depths`.
+struct ShelfAndBedKinds {
+    depths: bool,
+}
+
+impl Kinds for ShelfAndBedKinds {
+    fn same_kind(&self, a: &[f32], b: &[f32]) -> bool {
+        a == b
+    }
+
+    fn largest_side(&self, prototype: &[f32]) -> Option<f64> {
+        Some(if prototype[0] > 0.5 { 1.03 } else { 2.34 })
+    }
+
+    fn typical_depth(&self, prototype: &[f32]) -> Option<f64> {
+        self.depths
+            .then_some(if prototype[0] > 0.5 { 0.32 } else { 1.55 })
+    }
+}
+
+#[test]
+fn a_chair_named_like_the_bookshelf_behind_it_is_no_fragment_of_it_but_a_beds_halves_are() {
+    // Benchmark 15802: a chair touching a low bookshelf's front, as tall as it, named
+    // bookshelf by the features. Together 0.9 m long (no longer than a bookshelf) but 0.8 m
+    // deep: 2.5 bookshelves deep.
+    let shelf_named = |centre: Vec3, half: Vec3| WindowInstance {
+        gaussians: cuboid(centre, half),
+        prototype: vec![1.0, 0.0, 0.0],
+        support: 300,
+    };
+    let pair = || {
+        vec![
+            shelf_named(Vec3::new(0.0, 0.15, 0.45), Vec3::new(0.45, 0.15, 0.45)),
+            shelf_named(Vec3::new(0.0, 0.55, 0.45), Vec3::new(0.25, 0.25, 0.45)),
+        ]
+    };
+    let mut map = SceneMap::new(FusionParams::default());
+    let report = map
+        .fuse_named(pair(), &[], 1, ShelfAndBedKinds { depths: true })
+        .unwrap();
+    assert!(report.absorbed.is_empty(), "{:?}", report.absorbed);
+    assert_eq!(map.instances.len(), 2);
+    // Without the depth they fold: the setup is a fragment pair by length.
+    let mut by_length = SceneMap::new(FusionParams::default());
+    let report = by_length
+        .fuse_named(pair(), &[], 1, ShelfAndBedKinds { depths: false })
+        .unwrap();
+    assert_eq!(report.absorbed.len(), 1, "{report:?}");
+    // A bed's two halves, 1.4 m across together (a bed is typically 1.55 m), are one bed.
+    let mut bed = SceneMap::new(FusionParams::default());
+    let report = bed
+        .fuse_named(
+            vec![bed_half(0.0), bed_half(1.02)],
+            &[],
+            1,
+            ShelfAndBedKinds { depths: true },
+        )
+        .unwrap();
+    assert_eq!(report.absorbed.len(), 1, "{report:?}");
 }
 
 #[test]

@@ -155,4 +155,9 @@ impl Kinds for KindMemo<'_> {
         self.best_phrase(prototype)
             .and_then(|name| self.priors().typical_length(&name))
     }
+
+    fn typical_depth(&self, prototype: &[f32]) -> Option<f64> {
+        self.best_phrase(prototype)
+            .and_then(|name| self.priors().typical_depth(&name))
+    }
 }

@@ -6,7 +6,7 @@
 use glam::Vec3;
 
 use super::footprint::Footprints;
-use super::shapes::{boxes_alike, fitted, two_whole_boxes};
+use super::shapes::{boxes_alike, fitted, two_whole_boxes, WHOLE_SHARE};
 use super::{Kinds, SceneMap};
 use crate::graph::instance::{bounds, cosine, Instance};
 use crate::recon::boxes::DEFAULT_TRIM;
@@ -49,6 +49,13 @@ const FRAGMENT_TOUCH: f32 = 0.02;
 /// boxes fitted to a few points): two chairs side by side touch and are named alike, but
 /// together they are twice as long as any chair.
 pub(super) const FRAGMENT_SIDE_MARGIN: f64 = 1.5;
+
+/// ... and at most this many times as deep (the union's shorter horizontal side) as an object of
+/// their name typically is ([`Kinds::typical_depth`]): a chair in front of a bookshelf that the
+/// features name bookshelf too (benchmark 15802: 0.8 m together, a bookshelf is 0.32 m deep), or
+/// two bookshelves meeting at a right angle in a corner, are no fragments of one bookshelf; the
+/// halves of a bed (1.4 m across, typically 1.55) are.
+pub(super) const FRAGMENT_DEPTH_MARGIN: f64 = 1.5;
 
 /// A leg (or a side panel): an instance at most this thick along x or y (axis-aligned bounds),
 /// at least [`LEG_MIN_HEIGHT_M`] tall and twice as tall as it is thick.
@@ -98,6 +105,13 @@ const BACK_MAX_THICKNESS_M: f32 = 0.4;
 /// ... lying along a side of the seat it stands behind: at least this share of the shorter of
 /// its length and that side beside each other ...
 const BACK_ALONG_SHARE: f32 = 0.6;
+/// ... and, behind a seat seen whole (as long as one of its name, [`WHOLE_SHARE`]), its middle
+/// within the seat's extent along that side and at most this many times as long as the seat's
+/// longer horizontal side: a headboard spans its bed, a backrest its seat. Two bookshelves
+/// meeting in a corner (benchmark 15818) or a bookshelf 1.5 m long behind a chair 0.69 m across
+/// named like it (layouts 1006) are no back and seat; a sofa's back over a piece of its seat
+/// (0.5 m of it seen, benchmark 16209) is ...
+const BACK_LENGTH_RATIO: f32 = 2.0;
 /// ... within this of that side (a bed's middle under its pillows and duvet goes unseen or to
 /// the pillows: the benchmark's beds left up to 0.9 m between foot and headboard) ...
 const BACK_GAP_M: f32 = 1.0;
@@ -121,8 +135,14 @@ const BACK_STARTS_ABOVE_M: f32 = 0.5;
 /// other bed, not along it; a chair behind another has a back as high as its neighbour's.
 /// `noise_spread` (m, 0 for a clean camera) is how much thicker than it is the back's bounds
 /// are drawn by range noise: a headboard seen from 5 m through a consumer camera's noise (σ 15
-/// cm) spreads over more than a metre along the view.
-pub fn is_back_of(back: (Vec3, Vec3), seat: (Vec3, Vec3), noise_spread: f32) -> bool {
+/// cm) spreads over more than a metre along the view. `seat_is_whole`: the seat is as long as
+/// an object of its name, so a back of it spans it ([`BACK_LENGTH_RATIO`]).
+pub fn is_back_of(
+    back: (Vec3, Vec3),
+    seat: (Vec3, Vec3),
+    noise_spread: f32,
+    seat_is_whole: bool,
+) -> bool {
     let finite = back.0.is_finite()
         && back.1.is_finite()
         && seat.0.is_finite()
@@ -142,6 +162,10 @@ pub fn is_back_of(back: (Vec3, Vec3), seat: (Vec3, Vec3), noise_spread: f32) -> 
     let beside = (back.1[along].min(seat.1[along]) - back.0[along].max(seat.0[along])).max(0.0);
     let side = seat.1[along] - seat.0[along];
     let alongside = length > 0.0 && beside >= BACK_ALONG_SHARE * length.min(side);
+    let back_middle_along = (back.0[along] + back.1[along]) / 2.0;
+    let centred = (seat.0[along]..=seat.1[along]).contains(&back_middle_along);
+    let seat_length = (seat.1.x - seat.0.x).max(seat.1.y - seat.0.y);
+    let spans_the_seat = !seat_is_whole || (centred && length <= BACK_LENGTH_RATIO * seat_length);
     // Beyond one end of the seat along the normal, within the gap (or overlapping that end).
     let middle = (seat.0[normal] + seat.1[normal]) / 2.0;
     let back_middle = (back.0[normal] + back.1[normal]) / 2.0;
@@ -153,6 +177,7 @@ pub fn is_back_of(back: (Vec3, Vec3), seat: (Vec3, Vec3), noise_spread: f32) -> 
     let beyond = (back_middle - middle).abs() >= (seat.1[normal] - seat.0[normal]) / 4.0;
     let stands_on_seat = back.0.z <= seat.1.z + BACK_STARTS_ABOVE_M;
     thin && alongside
+        && spans_the_seat
         && beyond
         && gap <= BACK_GAP_M
         && back.1.z >= seat.1.z + BACK_RISES_M
@@ -204,7 +229,15 @@ impl SceneMap {
             }
             let (back_a, spread_a) = footprints.back_bounds(instances, a);
             let (back_b, spread_b) = footprints.back_bounds(instances, b);
-            if is_back_of(back_a, bounds_b, spread_a) || is_back_of(back_b, bounds_a, spread_b) {
+            let whole = |bounds: (Vec3, Vec3), prototype: &[f32]| {
+                let size = bounds.1 - bounds.0;
+                kinds
+                    .typical_length(prototype)
+                    .is_some_and(|typical| f64::from(size.x.max(size.y)) >= WHOLE_SHARE * typical)
+            };
+            if is_back_of(back_a, bounds_b, spread_a, whole(bounds_b, pb))
+                || is_back_of(back_b, bounds_a, spread_b, whole(bounds_a, pa))
+            {
                 tracing::debug!(a = %instances[a].id, b = %instances[b].id, "fold rule: a back");
                 return true;
             }
@@ -216,8 +249,12 @@ impl SceneMap {
                     let both: Vec<Vec3> = ma.iter().chain(mb).copied().collect();
                     let union = fit_object_box(&both, DEFAULT_TRIM);
                     let length = union.size.x.max(union.size.y);
-                    // Seen apart, each as long as one: two objects of a row, not fragments.
+                    let depth = union.size.x.min(union.size.y);
                     length <= FRAGMENT_SIDE_MARGIN * side
+                        && kinds
+                            .typical_depth(pa)
+                            .is_none_or(|typical| depth <= FRAGMENT_DEPTH_MARGIN * typical)
+                        // Seen apart, each as long as one: two objects of a row, not fragments.
                         && !(seen_apart && {
                             let (box_a, box_b) = (fitted(ma), fitted(mb));
                             boxes_alike(&box_a, &box_b)

@@ -40,6 +40,11 @@ pub trait Kinds {
     fn typical_length(&self, _prototype: &[f32]) -> Option<f64> {
         None
     }
+    /// The typical shorter horizontal side (m) of an object of `prototype`'s kind; `None` when
+    /// unknown.
+    fn typical_depth(&self, _prototype: &[f32]) -> Option<f64> {
+        None
+    }
 }
 
 impl<F: Fn(&[f32], &[f32]) -> bool> Kinds for F {

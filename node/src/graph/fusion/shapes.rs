@@ -20,7 +20,7 @@ const ALIKE_MIN_SIDE_M: f64 = 0.15;
 /// -2.3, 0.7 +3.8 / +6.3 / -1.3, 0.8 +2.5 / +3.9 / -0.9: at 0.6 pieces of a desk, 0.9 m of its
 /// 1.4, were split as two desks). Checked on layouts 440-459 (+2.5 / +0.6 / +1.4), 400-419 and
 /// benchmark 11800-11819, 12000-12019 (no change), which no setting was read from.
-const WHOLE_SHARE: f64 = 0.7;
+pub(super) const WHOLE_SHARE: f64 = 0.7;
 /// Two whole objects stand side by side: their boxes overlap at most this much (3D IoU). Two
 /// sightings of one chair in one window, a little apart through depth noise, overlap more
 /// (benchmark 7010 and 8002: a chair split into two without it). A choice, not fitted; checked

@@ -131,32 +131,67 @@ fn a_headboard_folds_into_its_bed_but_not_into_the_twin_bed_beside_it() {
     // wider than the part of the mattress seen, rising above it.
     let mattress = (Vec3::new(5.1, 1.9, 0.0), Vec3::new(6.6, 2.6, 0.48));
     let headboard = (Vec3::new(7.45, 1.1, 0.48), Vec3::new(7.6, 3.0, 1.2));
-    assert!(is_back_of(headboard, mattress, 0.0));
+    assert!(is_back_of(headboard, mattress, 0.0, false));
     assert!(
-        !is_back_of(mattress, headboard, 0.0),
+        !is_back_of(mattress, headboard, 0.0, false),
         "the mattress is no back"
     );
     // A twin bed beside it (y 3.4-5.0): the headboard lies along its own bed, not this one.
     let twin = (Vec3::new(5.6, 3.4, 0.0), Vec3::new(7.5, 5.0, 0.48));
-    assert!(!is_back_of(headboard, twin, 0.0));
+    assert!(!is_back_of(headboard, twin, 0.0, false));
     // A chair in the row behind another: its back is no higher than the other chair.
     let chair = (Vec3::new(0.0, 0.0, 0.0), Vec3::new(0.45, 0.45, 0.9));
     let back_of_the_chair_behind = (Vec3::new(0.0, 0.7, 0.45), Vec3::new(0.45, 0.75, 0.9));
-    assert!(!is_back_of(back_of_the_chair_behind, chair, 0.0));
+    assert!(!is_back_of(back_of_the_chair_behind, chair, 0.0, false));
     // A box on a refrigerator's top (2.18 m up), seen thin from below, beside a box on the
     // floor: it starts far above that box's top, so it is no back of it.
     let floor_box = (Vec3::new(4.2, 4.7, 0.0), Vec3::new(4.5, 4.95, 0.25));
     let box_on_top = (Vec3::new(4.25, 5.4, 2.18), Vec3::new(4.6, 5.5, 2.33));
-    assert!(!is_back_of(box_on_top, floor_box, 0.0));
+    assert!(!is_back_of(box_on_top, floor_box, 0.0, false));
     // Farther than the gap, in the seat's middle, or without finite bounds: no back.
     let far = (Vec3::new(7.7, 1.1, 0.48), Vec3::new(7.85, 3.0, 1.2));
     let across_the_middle = (Vec3::new(5.8, 1.1, 0.48), Vec3::new(5.95, 3.0, 1.2));
-    assert!(!is_back_of(far, mattress, 0.0) && !is_back_of(across_the_middle, mattress, 0.0));
+    assert!(
+        !is_back_of(far, mattress, 0.0, false)
+            && !is_back_of(across_the_middle, mattress, 0.0, false)
+    );
     let nan = (Vec3::splat(f32::NAN), Vec3::splat(f32::NAN));
     let empty = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
     for bad in [nan, empty] {
-        assert!(!is_back_of(bad, mattress, 0.0) && !is_back_of(headboard, bad, 0.0));
+        assert!(!is_back_of(bad, mattress, 0.0, false) && !is_back_of(headboard, bad, 0.0, false));
     }
+}
+
+#[test]
+fn a_bookshelf_at_a_right_angle_or_behind_a_chair_is_no_back_of_it_but_a_sofas_back_over_a_piece_is(
+) {
+    // Benchmark 15818: two bookshelves meeting in a corner, each seen whole. The taller one
+    // (1.84 m) is thin and rises above the shorter one's top, lying along its 0.3 m end, but it
+    // runs on past that end: its middle lies beyond the shorter one, as no headboard lies
+    // beside its bed.
+    let tall = (Vec3::new(0.13, 0.02, 0.0), Vec3::new(1.06, 0.35, 1.84));
+    let short = (Vec3::new(0.02, 0.34, 0.0), Vec3::new(0.32, 1.17, 1.52));
+    assert!(!is_back_of(tall, short, 0.0, true));
+    // The same tall one centred on the short one's end: a back by every test.
+    let centred = (Vec3::new(-0.3, 0.02, 0.0), Vec3::new(0.63, 0.35, 1.84));
+    assert!(is_back_of(centred, short, 0.0, true));
+    // Layouts 1006: a bookshelf 1.5 m long, 0.25 m behind a chair 0.69 m across that the
+    // features name bookshelf too: more than twice as long as the chair, so no back of it.
+    let chair = (Vec3::new(4.6, 3.04, 0.0), Vec3::new(5.28, 3.65, 0.76));
+    let shelf = (Vec3::new(5.53, 2.72, 0.0), Vec3::new(5.91, 4.22, 2.08));
+    assert!(!is_back_of(shelf, chair, 0.0, true));
+    let backrest = (Vec3::new(5.53, 3.0, 0.0), Vec3::new(5.73, 3.7, 1.2));
+    assert!(is_back_of(backrest, chair, 0.0, true));
+    // Benchmark 16209: a sofa's back 1.87 m long over a piece of its seat 0.5 m long, off to one
+    // side: a piece of a seat may lie anywhere under its back.
+    let sofa_back = (Vec3::new(1.58, 6.57, 0.48), Vec3::new(3.45, 6.58, 0.99));
+    let seat_piece = (Vec3::new(2.5, 5.68, 0.0), Vec3::new(2.99, 5.93, 0.53));
+    assert!(is_back_of(sofa_back, seat_piece, 0.0, false));
+    assert!(!is_back_of(sofa_back, seat_piece, 0.0, true));
+    // A bed seen from its foot end, 0.7 m of its width: its headboard spans it, whole or not.
+    let mattress = (Vec3::new(5.1, 1.9, 0.0), Vec3::new(6.6, 2.6, 0.48));
+    let headboard = (Vec3::new(7.45, 1.1, 0.48), Vec3::new(7.6, 3.0, 1.2));
+    assert!(is_back_of(headboard, mattress, 0.0, true));
 }
 
 #[test]
@@ -179,19 +214,19 @@ fn a_noisy_back_is_judged_by_its_central_points_less_the_noise_and_degenerate_se
     // A headboard 0.9 m deep through noise: a back only with the noise's spread allowed for.
     let mattress = (Vec3::new(5.1, 1.9, 0.0), Vec3::new(6.6, 2.6, 0.48));
     let spread_headboard = (Vec3::new(7.1, 1.1, 0.48), Vec3::new(8.0, 3.0, 1.2));
-    assert!(!is_back_of(spread_headboard, mattress, 0.0));
-    assert!(is_back_of(spread_headboard, mattress, 0.6));
+    assert!(!is_back_of(spread_headboard, mattress, 0.0, false));
+    assert!(is_back_of(spread_headboard, mattress, 0.6, false));
     // Noise never makes a back of what is no back: the mattress, or a chair's neighbour.
-    assert!(!is_back_of(mattress, spread_headboard, 0.6));
+    assert!(!is_back_of(mattress, spread_headboard, 0.6, false));
     // A lamp's shade above another lamp, 21 cm across each way: the noise makes it thin,
     // never long.
     let lamp = (Vec3::new(0.0, 0.0, 0.0), Vec3::new(0.25, 0.25, 0.52));
     let shade = (Vec3::new(0.02, 0.3, 0.7), Vec3::new(0.234, 0.51, 0.83));
-    assert!(!is_back_of(shade, lamp, 0.18));
+    assert!(!is_back_of(shade, lamp, 0.18, false));
     for bad in [f32::NAN, -0.1, f32::INFINITY] {
-        assert!(!is_back_of(spread_headboard, mattress, bad), "{bad}");
+        assert!(!is_back_of(spread_headboard, mattress, bad, false), "{bad}");
     }
-    assert!(!is_back_of(empty, mattress, 0.6));
+    assert!(!is_back_of(empty, mattress, 0.6, false));
 }
 
 #[test]
