@@ -20,7 +20,7 @@ const ALIKE_MIN_SIDE_M: f64 = 0.15;
 /// -2.3, 0.7 +3.8 / +6.3 / -1.3, 0.8 +2.5 / +3.9 / -0.9: at 0.6 pieces of a desk, 0.9 m of its
 /// 1.4, were split as two desks). Checked on layouts 440-459 (+2.5 / +0.6 / +1.4), 400-419 and
 /// benchmark 11800-11819, 12000-12019 (no change), which no setting was read from.
-pub(super) const WHOLE_SHARE: f64 = 0.7;
+const WHOLE_SHARE: f64 = 0.7;
 /// Two whole objects stand side by side: their boxes overlap at most this much (3D IoU). Two
 /// sightings of one chair in one window, a little apart through depth noise, overlap more
 /// (benchmark 7010 and 8002: a chair split into two without it). A choice, not fitted; checked
@@ -46,6 +46,15 @@ pub(super) fn boxes_alike(a: &OrientedBox, b: &OrientedBox) -> bool {
         .all(|(x, y)| x.is_finite() && y.is_finite() && x.max(*y) <= ALIKE_SIDE_RATIO * x.min(*y))
 }
 
+/// Whether something whose longer horizontal side is `length` (m) is one whole object of a name
+/// whose objects are typically `typical_length` long ([`WHOLE_SHARE`]); never without a typical
+/// length, or with one or a length that is no number.
+pub(super) fn as_long_as_one(length: f64, typical_length: Option<f64>) -> bool {
+    typical_length
+        .filter(|t| t.is_finite() && *t > 0.0)
+        .is_some_and(|typical| length.is_finite() && length >= WHOLE_SHARE * typical)
+}
+
 /// Whether the point sets with these [`fitted`] boxes, alike and together `length` long (m), are
 /// two whole objects of a name whose objects are typically `typical_length` long and at most
 /// `largest_side`: each as long as one ([`WHOLE_SHARE`]), side by side ([`SIDE_BY_SIDE_IOU`]) and
@@ -59,14 +68,11 @@ pub(super) fn two_whole_boxes(
     typical_length: Option<f64>,
     largest_side: f64,
 ) -> bool {
-    let Some(typical) = typical_length.filter(|t| t.is_finite() && *t > 0.0) else {
-        return false;
-    };
     if !(length.is_finite() && length > largest_side) {
         return false;
     }
     let whole = |fitted: &OrientedBox| {
-        fitted.size.is_finite() && fitted.size.x.max(fitted.size.y) >= WHOLE_SHARE * typical
+        fitted.size.is_finite() && as_long_as_one(fitted.size.x.max(fitted.size.y), typical_length)
     };
     whole(box_a) && whole(box_b) && box_a.iou(box_b) <= SIDE_BY_SIDE_IOU
 }
