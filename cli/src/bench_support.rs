@@ -209,15 +209,15 @@ pub(crate) fn sensor_depths(map: &SceneMap, views: &[WindowView]) -> Vec<Arc<Mea
                 .iter()
                 .map(|d| if *d > 0.0 { *d } else { f32::NAN })
                 .collect();
-            Some(Arc::new(MeasuredDepth {
-                keyframe: Keyframe {
+            Some(Arc::new(MeasuredDepth::new(
+                Keyframe {
                     stamp_nanos: v.keyframe.stamp_nanos,
                     camera,
                     world_from_camera,
                 },
                 depth,
-                noise_at_1m: None,
-            }))
+                None,
+            )))
         })
         .collect()
 }

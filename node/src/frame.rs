@@ -2,7 +2,7 @@
 //! a window pass hands to fusion. Plain data over the geometric core ([`crate::recon`]); every
 //! stage above imports it, it imports no stage.
 
-use glam::DVec2;
+use glam::{DVec2, Vec3};
 
 use crate::recon::camera::Camera;
 use crate::recon::gaussians::Gaussians;
@@ -67,6 +67,46 @@ pub struct MeasuredDepth {
     pub depth: Vec<f32>,
     /// Its range noise (σ at 1 m), as measured for fusion.
     pub noise_at_1m: Option<f32>,
+    /// [`MeasuredDepth::world_points`], unprojected on first use: every answer's mask in this
+    /// view reads them, and they depend on the view alone, not on the map.
+    world_points: std::sync::OnceLock<Vec<Vec3>>,
+}
+
+impl MeasuredDepth {
+    pub fn new(keyframe: Keyframe, depth: Vec<f32>, noise_at_1m: Option<f32>) -> Self {
+        Self {
+            keyframe,
+            depth,
+            noise_at_1m,
+            world_points: std::sync::OnceLock::new(),
+        }
+    }
+
+    /// Each pixel's reading as a world point ([`world_points`]).
+    pub fn world_points(&self) -> &[Vec3] {
+        self.world_points
+            .get_or_init(|| world_points(&self.keyframe, &self.depth))
+    }
+}
+
+/// Per pixel of `keyframe` (row-major, its resolution), the point its z-depth in `depth`
+/// measured, in the world frame, at the integer pixel coordinates the model's Gaussians were
+/// lifted at; NaN where there is no reading (NaN, <= 0, or past the end of `depth`).
+pub fn world_points(keyframe: &Keyframe, depth: &[f32]) -> Vec<Vec3> {
+    let w = keyframe.camera.width as usize;
+    let h = keyframe.camera.height as usize;
+    (0..w * h)
+        .map(|p| match depth.get(p) {
+            Some(&d) if d.is_finite() && d > 0.0 => {
+                let pixel = DVec2::new((p % w) as f64, (p / w) as f64);
+                keyframe
+                    .world_from_camera
+                    .transform_point(keyframe.camera.unproject(pixel, f64::from(d)))
+                    .as_vec3()
+            }
+            _ => Vec3::NAN,
+        })
+        .collect()
 }
 
 /// A window view as fusion sees it: the keyframe and the depth the window observed there (sensor

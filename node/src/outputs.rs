@@ -275,8 +275,7 @@ impl ListedLabels {
             // Where the sensor read nothing the pixel is 0: the splats an answer falls back to
             // there would be drawn over every listed instance, several times the cost of the
             // rest (`bench outputs`).
-            let found =
-                crate::refer::masks::measured_labels(volume, &m.keyframe, &m.depth, m.noise_at_1m);
+            let found = crate::refer::masks::measured_view_labels(volume, m);
             let labels = found
                 .iter()
                 .map(|&f| match f {
@@ -793,11 +792,7 @@ mod tests {
                 _ => 2.0,
             })
             .collect();
-        let measured = std::sync::Arc::new(MeasuredDepth {
-            keyframe: sensor,
-            depth,
-            noise_at_1m: Some(0.001),
-        });
+        let measured = std::sync::Arc::new(MeasuredDepth::new(sensor, depth, Some(0.001)));
         let scene = scene.with_measured(&[measured]);
         // Listed in the other order: labels follow the list.
         let listed = vec![instances[1].clone(), instances[0].clone()];
@@ -824,11 +819,8 @@ mod tests {
             camera: Camera::from_fov(128, 96, 1.2).unwrap(),
             world_from_camera: Rigid::default(),
         };
-        let measured = std::sync::Arc::new(MeasuredDepth {
-            keyframe: sensor,
-            depth: vec![2.0; 128 * 96],
-            noise_at_1m: Some(0.001),
-        });
+        let measured =
+            std::sync::Arc::new(MeasuredDepth::new(sensor, vec![2.0; 128 * 96], Some(0.001)));
         let scene = scene.with_measured(&[measured]);
         let right = scene
             .nodes

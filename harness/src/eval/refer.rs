@@ -14,7 +14,7 @@ use groupforward_sim::referring::Expression;
 use serde::Serialize;
 
 use super::score::TruthObject;
-use groupforward::frame::Keyframe;
+use groupforward::frame::{Keyframe, MeasuredDepth};
 use groupforward::graph::SceneMap;
 use groupforward::group::semantics::Vocabulary;
 use groupforward::model::text::TextEncoder;
@@ -25,7 +25,7 @@ use groupforward::recon::depth_noise::noise_at_1m;
 use groupforward::recon::gaussians::Gaussians;
 use groupforward::recon::raster::{render, RasterSettings};
 use groupforward::recon::Rigid;
-use groupforward::refer::masks::{answer_labels, measured_labels, AnswerVolume};
+use groupforward::refer::masks::{answer_labels, measured_view_labels, AnswerVolume};
 use groupforward::refer::response::pose_box;
 use groupforward::refer::ReferSection;
 use groupforward_sim::simulation::Simulation;
@@ -44,8 +44,7 @@ pub const HELD_OUT_EVERY: usize = 10;
 pub struct HeldOutView {
     pub keyframe: Keyframe,
     pub truth: Vec<u16>,
-    pub measured_depth: Option<Vec<f32>>,
-    pub noise_at_1m: Option<f32>,
+    pub measured: Option<MeasuredDepth>,
     pub scene_depth: Vec<f32>,
 }
 
@@ -81,15 +80,15 @@ pub fn held_out_views(sim: &Simulation, map: &SceneMap, with_depth: bool) -> Vec
             )
             .map(|r| r.depth)
             .unwrap_or_default();
-            let measured_depth = with_depth.then(|| view.sensor_depth().to_vec());
-            let noise_at_1m = measured_depth
-                .as_deref()
-                .and_then(|d| noise_at_1m([(d, p.width as usize)]));
+            let measured = with_depth.then(|| {
+                let depth = view.sensor_depth().to_vec();
+                let noise = noise_at_1m([(depth.as_slice(), p.width as usize)]);
+                MeasuredDepth::new(keyframe.clone(), depth, noise)
+            });
             Some(HeldOutView {
                 keyframe,
                 truth: view.truth.instance.clone(),
-                measured_depth,
-                noise_at_1m,
+                measured,
                 scene_depth,
             })
         })
@@ -117,15 +116,11 @@ pub fn referring_iou(
         if !truth.iter().any(|t| *t) {
             continue;
         }
-        let measured = view
-            .measured_depth
-            .as_deref()
-            .map(|d| (d, view.noise_at_1m));
         let predicted = answer_labels(
             &answer,
             volume.as_ref(),
             &view.keyframe,
-            measured,
+            view.measured.as_ref(),
             &view.scene_depth,
         );
         let pairs = predicted.iter().zip(&truth).map(|(p, t)| (*p > 0, *t));
@@ -314,10 +309,10 @@ pub fn published_mask_iou(
     let volume = AnswerVolume::new(&instances, &chosen)?;
     let mut ious = Vec::new();
     for view in views {
-        let Some(depth) = view.measured_depth.as_deref() else {
+        let Some(measured) = view.measured.as_ref() else {
             continue;
         };
-        let labels = measured_labels(&volume, &view.keyframe, depth, view.noise_at_1m);
+        let labels = measured_view_labels(&volume, measured);
         for (k, &(_, object)) in found.iter().enumerate() {
             let label = Some((k + 1) as u16);
             let pairs = labels.iter().zip(&view.truth);
@@ -510,15 +505,19 @@ mod tests {
                 })
                 .collect()
         };
+        let keyframe = Keyframe {
+            stamp_nanos: 1,
+            camera,
+            world_from_camera: Rigid::default(),
+        };
         let view = |truth: Vec<u16>| HeldOutView {
-            keyframe: Keyframe {
-                stamp_nanos: 1,
-                camera,
-                world_from_camera: Rigid::default(),
-            },
+            keyframe: keyframe.clone(),
             truth,
-            measured_depth: Some(vec![2.0; 64 * 48]),
-            noise_at_1m: None,
+            measured: Some(MeasuredDepth::new(
+                keyframe.clone(),
+                vec![2.0; 64 * 48],
+                None,
+            )),
             scene_depth: Vec::new(),
         };
         let right = published_mask_iou(&shared, &objects, &[view(truth_of(7, 9))]);
@@ -527,7 +526,7 @@ mod tests {
         assert!(swapped.is_some_and(|iou| iou < 0.05), "{swapped:?}");
         // Without measured depth there is nothing to score.
         let mut blind = view(truth_of(7, 9));
-        blind.measured_depth = None;
+        blind.measured = None;
         assert_eq!(published_mask_iou(&shared, &objects, &[blind]), None);
     }
 

@@ -291,15 +291,15 @@ fn measured_depths(frames: &mut [SyncedFrame], views: &[WindowView]) -> Vec<Arc<
                 .depth
                 .take()
                 .filter(|d| (d.width, d.height) == (f.camera.width, f.camera.height))?;
-            Some(Arc::new(MeasuredDepth {
-                keyframe: Keyframe {
+            Some(Arc::new(MeasuredDepth::new(
+                Keyframe {
                     stamp_nanos: f.stamp_nanos,
                     camera: f.camera,
                     world_from_camera: f.world_from_camera,
                 },
-                depth: depth.metres,
-                noise_at_1m: v.depth_noise_at_1m,
-            }))
+                depth.metres,
+                v.depth_noise_at_1m,
+            )))
         })
         .collect()
 }

@@ -9,8 +9,8 @@ use std::ops::Range;
 
 use glam::{DVec2, Vec3};
 
-use super::scene::{ReferScene, MASK_ALPHA};
-use crate::frame::Keyframe;
+use super::scene::{pixels, ReferScene, MASK_ALPHA};
+use crate::frame::{world_points, Keyframe, MeasuredDepth};
 use crate::recon::gaussians::Gaussians;
 use crate::recon::raster::{render_labels, RasterSettings};
 
@@ -190,6 +190,35 @@ pub fn measured_labels(
     depth: &[f32],
     noise_at_1m: Option<f32>,
 ) -> Vec<Option<u16>> {
+    labels_of_readings(
+        volume,
+        keyframe,
+        depth,
+        &world_points(keyframe, depth),
+        noise_at_1m,
+    )
+}
+
+/// [`measured_labels`] in a view whose sensor depth the node kept: its readings' world points
+/// are unprojected once per view ([`MeasuredDepth::world_points`]), not once per answer.
+pub fn measured_view_labels(volume: &AnswerVolume, view: &MeasuredDepth) -> Vec<Option<u16>> {
+    labels_of_readings(
+        volume,
+        &view.keyframe,
+        &view.depth,
+        view.world_points(),
+        view.noise_at_1m,
+    )
+}
+
+/// [`measured_labels`], given each reading's world point (`points`, NaN where none).
+fn labels_of_readings(
+    volume: &AnswerVolume,
+    keyframe: &Keyframe,
+    depth: &[f32],
+    points: &[Vec3],
+    noise_at_1m: Option<f32>,
+) -> Vec<Option<u16>> {
     let (w, h) = (
         keyframe.camera.width as usize,
         keyframe.camera.height as usize,
@@ -197,7 +226,6 @@ pub fn measured_labels(
     let noise = noise_at_1m
         .filter(|n| n.is_finite() && *n > 0.0)
         .unwrap_or(0.0);
-    let world_from_camera = &keyframe.world_from_camera;
     let (columns, rows) = volume.pixel_bounds(keyframe);
     (0..w * h)
         .map(|p| {
@@ -207,14 +235,10 @@ pub fn measured_labels(
                 return Some(0);
             }
             let d = *depth.get(p)?;
-            if !(d.is_finite() && d > 0.0) {
+            let point = *points.get(p)?;
+            if !(d.is_finite() && d > 0.0 && point.is_finite()) {
                 return None;
             }
-            // Integer pixel coordinates, as the model's Gaussians were lifted.
-            let pixel = DVec2::new(x as f64, y as f64);
-            let point = world_from_camera
-                .transform_point(keyframe.camera.unproject(pixel, f64::from(d)))
-                .as_vec3();
             let radius = MEASURED_MATCH_M + MEASURED_NOISE_SIGMAS * noise * d * d;
             Some(volume.owner_near(point, radius).unwrap_or(0))
         })
@@ -229,13 +253,13 @@ pub fn answer_labels(
     answer: &[&Gaussians],
     volume: Option<&AnswerVolume>,
     keyframe: &Keyframe,
-    measured: Option<(&[f32], Option<f32>)>,
+    measured: Option<&MeasuredDepth>,
     scene_depth: &[f32],
 ) -> Vec<u16> {
-    let (Some((depth, noise_at_1m)), Some(volume)) = (measured, volume) else {
+    let (Some(view), Some(volume)) = (measured, volume) else {
         return label_image(answer, keyframe, scene_depth);
     };
-    let measured = measured_labels(volume, keyframe, depth, noise_at_1m);
+    let measured = measured_view_labels(volume, view);
     // Splats are drawn only when the answer could be where the sensor read nothing.
     let splats = measured
         .iter()
@@ -255,11 +279,12 @@ pub fn resampled(image: &[f32], from: (usize, usize), to: (usize, usize)) -> Vec
     if fw == 0 || fh == 0 || image.len() != fw * fh {
         return Vec::new();
     }
-    (0..tw * th)
-        .map(|p| {
-            let x = ((p % tw) * fw / tw.max(1)).min(fw - 1);
-            let y = ((p / tw) * fh / th.max(1)).min(fh - 1);
-            image[y * fw + x]
+    // Each column's and row's source, once: the image is read without a division a pixel.
+    let columns: Vec<usize> = (0..tw).map(|x| (x * fw / tw.max(1)).min(fw - 1)).collect();
+    (0..th)
+        .flat_map(|y| {
+            let row = &image[(y * fh / th.max(1)).min(fh - 1) * fw..][..fw];
+            columns.iter().map(move |&x| row[x])
         })
         .collect()
 }
@@ -344,10 +369,12 @@ pub(crate) fn keyframe_labels<'s>(
     let scene_depth = scene.depths.get(k).map_or(&[][..], Vec::as_slice);
     match scene.measured.get(k).and_then(Option::as_ref) {
         Some(m) => {
-            let size = |kf: &Keyframe| (kf.camera.width as usize, kf.camera.height as usize);
-            let reference = resampled(scene_depth, size(keyframe), size(&m.keyframe));
-            let measured = Some((m.depth.as_slice(), m.noise_at_1m));
-            let labels = answer_labels(answer, volume, &m.keyframe, measured, &reference);
+            let kept = scene.measured_reference.get(k).map(Vec::as_slice);
+            let reference = match kept {
+                Some(r) if r.len() == m.depth.len() => std::borrow::Cow::Borrowed(r),
+                _ => resampled(scene_depth, pixels(keyframe), pixels(&m.keyframe)).into(),
+            };
+            let labels = answer_labels(answer, volume, &m.keyframe, Some(m), &reference);
             (&m.keyframe, labels)
         }
         None => (keyframe, label_image(answer, keyframe, scene_depth)),
@@ -479,7 +506,8 @@ pub(crate) mod tests {
         }
         let frame = keyframe();
         let splats = label_image(&[&panel], &frame, &[]);
-        let labels = answer_labels(&[&panel], Some(&volume), &frame, Some((&depth, None)), &[]);
+        let view = MeasuredDepth::new(frame.clone(), depth, None);
+        let labels = answer_labels(&[&panel], Some(&volume), &frame, Some(&view), &[]);
         let row = 24 * 64;
         assert_eq!(
             labels[row + 28],
@@ -493,6 +521,39 @@ pub(crate) mod tests {
             answer_labels(&[&panel], Some(&volume), &frame, None, &[]),
             splats
         );
+    }
+
+    #[test]
+    fn a_kept_view_labels_as_its_raw_depth_does_and_resamples_to_the_nearest_pixel() {
+        // A panel before a wall, read with noise and with holes: the view's world points,
+        // unprojected once and kept, give every answer the labels a fresh unprojection gives.
+        let (panel, back) = (wall(-0.2, 0.2, 2.0), wall(-1.5, 1.5, 3.0));
+        let mut depth = measured(2.0, 3.0, (-0.2, 0.2));
+        for (p, d) in depth.iter_mut().enumerate() {
+            if p % 7 == 0 {
+                *d = f32::NAN;
+            }
+        }
+        let view = MeasuredDepth::new(keyframe(), depth.clone(), Some(0.01));
+        for chosen in [[1], [0]] {
+            let volume = AnswerVolume::new(&[&back, &panel], &chosen).unwrap();
+            let fresh = measured_labels(&volume, &keyframe(), &depth, Some(0.01));
+            assert_eq!(measured_view_labels(&volume, &view), fresh);
+            assert!(fresh.contains(&Some(1)) && fresh.contains(&None));
+        }
+        assert!(std::ptr::eq(view.world_points(), view.world_points()));
+        // Nearest-pixel resampling, up and down, against the formula pixel by pixel.
+        let image: Vec<f32> = (0..7 * 5).map(|v| v as f32).collect();
+        for (from, to) in [((7, 5), (3, 4)), ((7, 5), (10, 11)), ((7, 5), (7, 5))] {
+            let want: Vec<f32> = (0..to.0 * to.1)
+                .map(|p| {
+                    let x = ((p % to.0) * from.0 / to.0).min(from.0 - 1);
+                    let y = ((p / to.0) * from.1 / to.1).min(from.1 - 1);
+                    image[y * from.0 + x]
+                })
+                .collect();
+            assert_eq!(resampled(&image, from, to), want, "{from:?} -> {to:?}");
+        }
     }
 
     #[test]

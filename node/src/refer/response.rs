@@ -9,6 +9,8 @@ use groupforward_msgs::sensor_msgs::{Image, PointCloud2, PointField};
 use groupforward_msgs::std_msgs::Header;
 use groupforward_msgs::vision_msgs::BoundingBox3D;
 
+use rayon::prelude::*;
+
 use super::masks::{answer_volume, keyframe_labels, label_image};
 use super::scene::ReferScene;
 use super::Answer;
@@ -145,11 +147,15 @@ pub fn response(
         .map(|(n, g)| (numeric_id(&n.id), g))
         .collect();
     let volume = answer_volume(scene, &ids);
-    let mut view_masks: Vec<InstanceMasks> = scene
+    // The views one per thread: each is a pass over a sensor image, the bulk of an answer.
+    let in_views: Vec<(&Keyframe, Vec<u16>)> = scene
         .keyframes
-        .iter()
+        .par_iter()
         .enumerate()
         .map(|(k, kf)| keyframe_labels(scene, k, kf, &refs, volume.as_ref()))
+        .collect();
+    let mut view_masks: Vec<InstanceMasks> = in_views
+        .into_iter()
         .chain(novel.map(|kf| (kf, label_image(&refs, kf, &[]))))
         .map(|(kf, labels)| InstanceMasks {
             header: Header {

@@ -71,6 +71,9 @@ pub struct ReferScene {
     pub depths: Vec<Vec<f32>>,
     /// Per keyframe, its sensor's depth where the node kept it (masks are cut by it).
     pub measured: Vec<Option<Arc<MeasuredDepth>>>,
+    /// Per keyframe with `measured`, `depths` resampled to its sensor's resolution (where the
+    /// sensor read nothing, an answer's splats are cut by it): once a snapshot, not an answer.
+    pub measured_reference: Vec<Vec<f32>>,
     /// The camera's pictures of the instances (the evidence shows them where kept).
     pub observations: Observations,
     /// The scene graph over the same keyframes (every instance, structure included).
@@ -106,6 +109,19 @@ impl ReferScene {
                     })
                     .cloned()
             })
+            .collect();
+        self.measured_reference = self
+            .measured
+            .iter()
+            .enumerate()
+            .map(
+                |(k, m)| match (m, self.keyframes.get(k), self.depths.get(k)) {
+                    (Some(m), Some(keyframe), Some(depth)) => {
+                        super::masks::resampled(depth, pixels(keyframe), pixels(&m.keyframe))
+                    }
+                    _ => Vec::new(),
+                },
+            )
             .collect();
         self
     }
@@ -204,6 +220,7 @@ impl ReferScene {
                 .cloned()
                 .collect(),
             measured: Vec::new(),
+            measured_reference: Vec::new(),
             observations: Observations::default(),
             depths,
             graph,
@@ -225,6 +242,14 @@ impl ReferScene {
             .map(|i| i.gaussians.clone())
             .unwrap_or_default()
     }
+}
+
+/// A keyframe's image size (columns, rows).
+pub(super) fn pixels(keyframe: &Keyframe) -> (usize, usize) {
+    (
+        keyframe.camera.width as usize,
+        keyframe.camera.height as usize,
+    )
 }
 
 /// Axis-aligned bounds of a gravity-aligned box turned by its yaw.
