@@ -3,6 +3,7 @@
 //! projected distance, direction and overlap), ARCHITECTURE.md §4.
 
 use glam::{DVec2, DVec3, Vec3};
+use rayon::prelude::*;
 
 use super::error::GraphError;
 use super::fusion::SceneMap;
@@ -47,9 +48,10 @@ impl SceneMap {
                 .map_err(|e| GraphError::Render(e.to_string()))
             })
             .collect::<Result<_, _>>()?;
+        // Every instance's points projected into every view: one instance per thread.
         let nodes: Vec<GraphNode> = self
             .instances
-            .iter()
+            .par_iter()
             .map(|instance| {
                 let (lo, hi) = instance.bounds();
                 let extent = hi - lo;
