@@ -211,8 +211,8 @@ pub(super) fn start_window_worker(
                             let live: rustc_hash::FxHashSet<&str> =
                                 map.instances.iter().map(|i| i.id.as_str()).collect();
                             observations.retain(|id| live.contains(id));
-                            let instances = times.time(Stage::List, || {
-                                super::services::instance_messages_cached(
+                            let lists = times.time(Stage::List, || {
+                                super::services::object_lists_cached(
                                     &map,
                                     models.vocabulary.as_ref(),
                                     hypotheses,
@@ -220,7 +220,7 @@ pub(super) fn start_window_worker(
                                 )
                             });
                             let Ok(mut s) = shared.lock() else { return };
-                            if !s.install_fused(generation, map, instances, boxes) {
+                            if !s.install_fused(generation, map, lists, boxes) {
                                 tracing::warn!(
                                     "window not fused: load_map replaced the map meanwhile"
                                 );

@@ -90,7 +90,8 @@ impl ReferScene {
     /// Snapshot `map`, naming instances with `vocabulary` (none: instances are unnamed and no
     /// concept can be matched).
     pub fn build(map: SceneMap, vocabulary: Option<&Vocabulary>) -> Result<Self, GraphError> {
-        Self::build_with_boxes(map, vocabulary, &HashMap::new())
+        let listed = query_list(&map, vocabulary, |i, box_like| i.fitted(box_like));
+        Self::build_listed(map, vocabulary, listed)
     }
 
     /// The snapshot with `views`' sensor depth attached to the keyframes taken at the same
@@ -132,12 +133,12 @@ impl ReferScene {
         self
     }
 
-    /// As [`ReferScene::build`], with instances' boxes already fitted (by id; e.g. from the
-    /// instance messages of the same map) instead of fitting them again.
-    pub fn build_with_boxes(
+    /// As [`ReferScene::build`], with the map's object list already made (e.g. with the
+    /// instance messages of the same map, so an answer's box is the one published).
+    pub fn build_listed(
         map: SceneMap,
         vocabulary: Option<&Vocabulary>,
-        boxes: &HashMap<String, OrientedBox>,
+        mut listed: QueryList,
     ) -> Result<Self, GraphError> {
         let (graph, renders) = map.graph_with_renders(SNAPSHOT_VIEWS, SNAPSHOT_EDGE_DISTANCE_M)?;
         let (depths, labels): (Vec<Vec<f32>>, Vec<Vec<Option<u32>>>) = renders
@@ -153,15 +154,6 @@ impl ReferScene {
                 (r.depth, labels)
             })
             .unzip();
-        let mut listed: HashMap<String, (OrientedBox, Vec<f32>, bool)> =
-            object_list_with_tentative(&map, vocabulary, |i, box_like| {
-                boxes
-                    .get(&i.id)
-                    .map_or_else(|| i.fitted(box_like), |b| (*b).into())
-            })
-            .into_iter()
-            .map(|l| (l.instance.id.clone(), (l.bbox, l.names, l.tentative)))
-            .collect();
         let mut nodes = Vec::new();
         for (instance, node) in map.instances.iter().zip(&graph.nodes) {
             // What the object list leaves out (structure, small unsure pieces) is no candidate,
@@ -242,6 +234,23 @@ impl ReferScene {
             .map(|i| i.gaussians.clone())
             .unwrap_or_default()
     }
+}
+
+/// The object list as queries read it, by instance id: its published box, p(name) for every
+/// phrase of the vocabulary, and whether it is a tentative candidate only (not published).
+pub type QueryList = HashMap<String, (OrientedBox, Vec<f32>, bool)>;
+
+/// `map`'s object list with its tentative candidates ([`object_list_with_tentative`]), boxes
+/// fitted by `fit`.
+pub fn query_list(
+    map: &SceneMap,
+    vocabulary: Option<&Vocabulary>,
+    fit: impl FnMut(&crate::graph::Instance, bool) -> crate::graph::Fitted,
+) -> QueryList {
+    object_list_with_tentative(map, vocabulary, fit)
+        .into_iter()
+        .map(|l| (l.instance.id.clone(), (l.bbox, l.names, l.tentative)))
+        .collect()
 }
 
 /// A keyframe's image size (columns, rows).

@@ -25,7 +25,7 @@ use refer::refer_json;
 pub use refer::{handle_refer, refer_request};
 pub use shared::{
     current_snapshot, current_snapshot_and_generation, instance_messages, instance_messages_cached,
-    query_snapshot, snapshot_due, BoxCache, Shared, SNAPSHOT_DUE_SECS,
+    object_lists_cached, query_snapshot, snapshot_due, BoxCache, Shared, SNAPSHOT_DUE_SECS,
 };
 
 /// The file a `save_map` / `load_map` request names: `map.file` when it names none; inside

@@ -10,13 +10,12 @@ use groupforward_msgs::gf_msgs::{Instance, NodeStatus};
 use groupforward_msgs::vision_msgs::ObjectHypothesis;
 
 use crate::frame::MeasuredDepth;
-use crate::graph::listing::object_list;
 use crate::graph::{Fitted, SceneMap};
 use crate::group::semantics::Vocabulary;
 use crate::model::text::TextEncoder;
 use crate::observations::Observations;
 use crate::outputs::ViewSource;
-use crate::recon::boxes::OrientedBox;
+use crate::refer::scene::{query_list, QueryList};
 use crate::refer::{self, ReferScene, ReferSection};
 use crate::timing::StageClock;
 
@@ -72,6 +71,9 @@ pub struct Shared {
     pub scene_graph_json: Option<serde_json::Value>,
     /// Boxes of the listed instances, refitted only when their Gaussians change.
     pub boxes: BoxCache,
+    /// The object list of `map` as queries read it, made with `instances` (the snapshot takes
+    /// it rather than listing the map again).
+    pub query_list: Arc<QueryList>,
     /// Recent durations of the window, publishing and query stages (the status reports them).
     pub stages: StageClock,
 }
@@ -120,9 +122,20 @@ pub fn instance_messages_cached(
     hypotheses: usize,
     cache: &mut BoxCache,
 ) -> Vec<Instance> {
+    object_lists_cached(map, vocabulary, hypotheses, cache).0
+}
+
+/// The instance messages ([`instance_messages_cached`]) and the object list queries read
+/// ([`QueryList`]: the same boxes, and the tentative candidates), from one listing of `map`.
+pub fn object_lists_cached(
+    map: &SceneMap,
+    vocabulary: Option<&Vocabulary>,
+    hypotheses: usize,
+    cache: &mut BoxCache,
+) -> (Vec<Instance>, QueryList) {
     let mut fitted = HashMap::new();
     // The structure changes with every window: completion is redone, fitting is cached.
-    let listed = object_list(map, vocabulary, |i, box_like| {
+    let listed = query_list(map, vocabulary, |i, box_like| {
         let print = fingerprint(&i.gaussians);
         let b = match cache.0.get(&i.id) {
             Some((seen, was_box_like, b)) if (*seen, *was_box_like) == (print, box_like) => *b,
@@ -131,13 +144,18 @@ pub fn instance_messages_cached(
         fitted.insert(i.id.clone(), (print, box_like, b));
         b
     });
-    let messages = listed
-        .into_iter()
-        .map(|listed| (listed.instance, listed.bbox, listed.names))
+    // In the map's order, as the object list is; tentative candidates are not published.
+    let messages = map
+        .instances
+        .iter()
+        .filter_map(|i| match listed.get(&i.id) {
+            Some((b, names, false)) => Some((i, *b, names)),
+            _ => None,
+        })
         .map(|(i, b, names)| Instance {
             id: i.id.clone(),
             hypotheses: vocabulary
-                .map(|v| v.ranked(&names, hypotheses))
+                .map(|v| v.ranked(names, hypotheses))
                 .unwrap_or_default()
                 .into_iter()
                 .map(|(class_id, score)| ObjectHypothesis {
@@ -159,7 +177,7 @@ pub fn instance_messages_cached(
         })
         .collect();
     cache.0 = fitted;
-    messages
+    (messages, listed)
 }
 
 impl Shared {
@@ -179,7 +197,7 @@ impl Shared {
         &mut self,
         fused_from: u64,
         map: SceneMap,
-        instances: Vec<Instance>,
+        (instances, query_list): (Vec<Instance>, QueryList),
         boxes: BoxCache,
     ) -> bool {
         if self.map_generation != fused_from {
@@ -188,6 +206,7 @@ impl Shared {
         }
         self.map = map;
         self.instances = instances;
+        self.query_list = Arc::new(query_list);
         self.boxes = boxes;
         self.map_generation += 1;
         true
@@ -196,12 +215,14 @@ impl Shared {
     /// Rebuild the instance messages after the map changed in place; the referring snapshot is
     /// retaken by the next query.
     pub fn refresh_instances(&mut self) {
-        self.instances = instance_messages_cached(
+        let (instances, query_list) = object_lists_cached(
             &self.map,
             self.vocabulary.as_ref(),
             self.hypotheses,
             &mut self.boxes,
         );
+        self.instances = instances;
+        self.query_list = Arc::new(query_list);
         self.map_generation += 1;
     }
 }
@@ -242,28 +263,25 @@ pub fn snapshot_due(s: &mut Shared) {
 pub fn current_snapshot_and_generation(
     shared: &Mutex<Shared>,
 ) -> std::result::Result<(Arc<ReferScene>, u64), String> {
-    let (map, vocabulary, generation, boxes, (measured, observations)) = {
+    let (map, vocabulary, generation, listed, (measured, observations)) = {
         let mut s = shared.lock().map_err(|e| e.to_string())?;
         if s.refer_scene_generation == s.map_generation {
             return Ok((s.refer_scene.clone(), s.map_generation));
         }
         s.refer_scene_building = Some((s.map_generation, std::time::Instant::now()));
-        // The listed instances' boxes were fitted when the map changed: reuse them.
-        let boxes: HashMap<String, OrientedBox> = s
-            .instances
-            .iter()
-            .map(|i| (i.id.clone(), refer::response::pose_box(&i.pose, &i.size)))
-            .collect();
         let seen = (s.measured_views.clone(), s.observations.clone());
         (
             s.map.clone(),
             s.vocabulary.clone(),
             s.map_generation,
-            boxes,
+            // Listed when the map changed, with the instance messages: answers carry the
+            // published boxes, and the snapshot does not list the map again.
+            s.query_list.clone(),
             seen,
         )
     };
-    let built = ReferScene::build_with_boxes(map, vocabulary.as_ref(), &boxes).map(|scene| {
+    let listed = Arc::unwrap_or_clone(listed);
+    let built = ReferScene::build_listed(map, vocabulary.as_ref(), listed).map(|scene| {
         scene
             .with_measured(&measured)
             .with_observations(observations)

@@ -55,7 +55,7 @@ fn a_window_fused_outside_the_lock_is_installed_unless_load_map_replaced_the_map
     assert!(s.install_fused(
         copied_at,
         SceneMap::default(),
-        fused.clone(),
+        (fused.clone(), Default::default()),
         BoxCache::default()
     ));
     assert_eq!(s.map_generation, copied_at + 1);
@@ -65,7 +65,12 @@ fn a_window_fused_outside_the_lock_is_installed_unless_load_map_replaced_the_map
     let copied_at = s.map_generation;
     s.set_map(SceneMap::default());
     let loaded = s.map_generation;
-    assert!(!s.install_fused(copied_at, SceneMap::default(), fused, BoxCache::default()));
+    assert!(!s.install_fused(
+        copied_at,
+        SceneMap::default(),
+        (fused, Default::default()),
+        BoxCache::default()
+    ));
     assert_eq!((s.map_generation, s.windows_superseded), (loaded, 1));
     assert!(
         s.instances.is_empty(),
@@ -167,8 +172,8 @@ fn map_paths_stay_inside_the_configured_directory() {
     assert_eq!(map_path(&s, "").unwrap(), "/var/robot/map.gfmap");
 }
 
-#[test]
-fn cached_boxes_are_refitted_exactly_where_the_gaussians_changed() {
+/// A map of three cubes of 27 Gaussians, 2 m apart along x, each fused as its own instance.
+fn three_cubes() -> SceneMap {
     use crate::frame::WindowInstance;
     use crate::graph::FusionParams;
     let cube = |x: f32| {
@@ -196,6 +201,45 @@ fn cached_boxes_are_refitted_exactly_where_the_gaussians_changed() {
         })
         .collect();
     map.fuse(window, &[], 1).unwrap();
+    map
+}
+
+#[test]
+fn an_answer_carries_the_published_box_from_the_list_made_with_the_messages() {
+    let shared = Mutex::new(Shared::default());
+    let mut s = shared.lock().unwrap();
+    s.set_map(three_cubes());
+    assert_eq!(s.instances.len(), 3);
+    assert_eq!(s.query_list.len(), 3);
+    // The snapshot takes that list: a box changed in it (and only there) is the one queries see.
+    let moved = &s.instances[1].id.clone();
+    Arc::make_mut(&mut s.query_list)
+        .get_mut(moved)
+        .unwrap()
+        .0
+        .centre
+        .x += 5.0;
+    drop(s);
+    let scene = current_snapshot(&shared).unwrap();
+    let s = shared.lock().unwrap();
+    for message in &s.instances {
+        let published = crate::refer::response::pose_box(&message.pose, &message.size);
+        let node = scene.node(&message.id).unwrap();
+        let shift = if &message.id == moved { 5.0 } else { 0.0 };
+        assert!(
+            (node.bbox.centre.x - published.centre.x - shift).abs() < 1e-9
+                && (node.bbox.size - published.size).length() < 1e-9,
+            "{}: {:?} against {:?}",
+            message.id,
+            node.bbox,
+            published
+        );
+    }
+}
+
+#[test]
+fn cached_boxes_are_refitted_exactly_where_the_gaussians_changed() {
+    let mut map = three_cubes();
     let mut cache = BoxCache::default();
     let first = instance_messages_cached(&map, None, 3, &mut cache);
     assert_eq!(first, instance_messages(&map, None, 3));
