@@ -172,7 +172,7 @@ pub fn trace_objects(
     let mut traces = vec![ObjectTrace::default(); objects.len()];
     let mut covered_pixels = vec![0.0f64; objects.len()];
     let object_boxes: Vec<OrientedBox> = objects.iter().map(|o| o.bbox).collect();
-    for window in windows {
+    for (w, window) in windows.iter().enumerate() {
         let seen: Vec<usize> = window
             .objects
             .iter()
@@ -184,7 +184,16 @@ pub fn trace_objects(
         for (&k, m) in seen.iter().zip(match_by_iou(&seen_boxes, &instance_boxes)) {
             let trace = &mut traces[k];
             trace.window_sightings += 1;
-            if let Some((_, iou)) = m {
+            if let Some((j, iou)) = m {
+                tracing::debug!(
+                    window = w,
+                    object = objects[k].id,
+                    class = %objects[k].class,
+                    window_instance = j,
+                    iou = format!("{iou:.2}"),
+                    to = %window.instances[j].1,
+                    "object grouped by the window"
+                );
                 trace.window_best_iou = trace.window_best_iou.max(iou);
                 trace.window_found += u32::from(iou >= IOU_LOOSE);
             }
@@ -207,11 +216,20 @@ pub fn trace_objects(
             }
         }
         let map_boxes: Vec<OrientedBox> = window.map.iter().map(|i| i.bbox).collect();
-        for (trace, m) in traces
+        for ((trace, m), object) in traces
             .iter_mut()
             .zip(match_by_iou(&object_boxes, &map_boxes))
+            .zip(objects)
         {
-            if let Some((_, iou)) = m {
+            if let Some((j, iou)) = m {
+                tracing::debug!(
+                    window = w,
+                    object = object.id,
+                    class = %object.class,
+                    instance = %window.map[j].id,
+                    iou = format!("{iou:.2}"),
+                    "object held by the map"
+                );
                 trace.map_best_iou = trace.map_best_iou.max(iou);
             }
         }
