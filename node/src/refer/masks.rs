@@ -9,7 +9,7 @@ use std::ops::Range;
 
 use glam::{DVec2, Vec3};
 
-use super::scene::{pixels, ReferScene, MASK_ALPHA};
+use super::scene::{pixels, resampled, ReferScene, MASK_ALPHA};
 use crate::frame::{world_points, Keyframe, MeasuredDepth};
 use crate::recon::gaussians::Gaussians;
 use crate::recon::raster::{render_labels, RasterSettings};
@@ -269,23 +269,6 @@ pub fn answer_labels(
         .iter()
         .enumerate()
         .map(|(p, m)| m.unwrap_or_else(|| splats.as_ref().map_or(0, |s| s[p])))
-        .collect()
-}
-
-/// `image` (`from` = width, height) sampled at the nearest pixel into `to`'s size; empty when
-/// `image` does not hold `from`'s pixels.
-pub fn resampled(image: &[f32], from: (usize, usize), to: (usize, usize)) -> Vec<f32> {
-    let ((fw, fh), (tw, th)) = (from, to);
-    if fw == 0 || fh == 0 || image.len() != fw * fh {
-        return Vec::new();
-    }
-    // Each column's and row's source, once: the image is read without a division a pixel.
-    let columns: Vec<usize> = (0..tw).map(|x| (x * fw / tw.max(1)).min(fw - 1)).collect();
-    (0..th)
-        .flat_map(|y| {
-            let row = &image[(y * fh / th.max(1)).min(fh - 1) * fw..][..fw];
-            columns.iter().map(move |&x| row[x])
-        })
         .collect()
 }
 

@@ -118,7 +118,7 @@ impl ReferScene {
             .map(
                 |(k, m)| match (m, self.keyframes.get(k), self.depths.get(k)) {
                     (Some(m), Some(keyframe), Some(depth)) => {
-                        super::masks::resampled(depth, pixels(keyframe), pixels(&m.keyframe))
+                        resampled(depth, pixels(keyframe), pixels(&m.keyframe))
                     }
                     _ => Vec::new(),
                 },
@@ -259,6 +259,23 @@ pub(super) fn pixels(keyframe: &Keyframe) -> (usize, usize) {
         keyframe.camera.width as usize,
         keyframe.camera.height as usize,
     )
+}
+
+/// `image` (`from` = width, height) sampled at the nearest pixel into `to`'s size; empty when
+/// `image` does not hold `from`'s pixels.
+pub fn resampled(image: &[f32], from: (usize, usize), to: (usize, usize)) -> Vec<f32> {
+    let ((fw, fh), (tw, th)) = (from, to);
+    if fw == 0 || fh == 0 || image.len() != fw * fh {
+        return Vec::new();
+    }
+    // Each column's and row's source, once: the image is read without a division a pixel.
+    let columns: Vec<usize> = (0..tw).map(|x| (x * fw / tw.max(1)).min(fw - 1)).collect();
+    (0..th)
+        .flat_map(|y| {
+            let row = &image[(y * fh / th.max(1)).min(fh - 1) * fw..][..fw];
+            columns.iter().map(move |&x| row[x])
+        })
+        .collect()
 }
 
 /// Axis-aligned bounds of a gravity-aligned box turned by its yaw.
